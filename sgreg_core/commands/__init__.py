@@ -1,0 +1,1 @@
+"""Subcommands of the sgreg CLI, one module each (see sgreg_core/cli.py)."""

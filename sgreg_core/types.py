@@ -1,0 +1,60 @@
+"""Core data types shared by every part of sgreg_core.
+
+They are plain containers with numpy arrays so that the ROS layer, the CLI and the tests can
+build and inspect them without knowing anything about how they are computed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class InstanceMap:
+    """What a semantic-mapping front-end hands us (DESIGN.md section 3).
+
+    points:   (N, 3) float32, metres, z up.
+    instance: (N,) int32 instance id per point; ids <= 0 or absent from `labels` are unlabelled.
+    labels:   instance id -> open-set label text.
+    scores:   instance id -> detection score in [0, 1] (1.0 when the front-end gives none).
+    colors:   (N, 3) uint8 or None.
+    """
+
+    points: np.ndarray
+    instance: np.ndarray
+    labels: dict[int, str]
+    scores: dict[int, float] = field(default_factory=dict)
+    colors: np.ndarray | None = None
+
+
+@dataclass
+class SceneGraph:
+    """A semantic scene graph G = {V, E} (paper section IV-A), one node per kept instance.
+
+    node_ids:   (n,) int64 instance id of each node in the source instance map.
+    labels:     n label strings.
+    scores:     (n,) float32 label scores.
+    centers:    (n, 3) float32 node centers o_i.
+    extents:    (n, 3) float32 box extents b_i (length >= width, height), orientation dropped.
+    points:     n arrays (k_i, 3) float32, the voxel-downsampled node point clouds P_i.
+    edges:      (m, 2) int64 undirected edges (i < j), indices into the node arrays.
+    structural: (n,) bool, True for floor / wall / ceiling-like nodes.
+    """
+
+    node_ids: np.ndarray
+    labels: list[str]
+    scores: np.ndarray
+    centers: np.ndarray
+    extents: np.ndarray
+    points: list[np.ndarray]
+    edges: np.ndarray
+    structural: np.ndarray
+
+    @property
+    def num_nodes(self) -> int:
+        return int(self.node_ids.shape[0])
+
+    @property
+    def num_edges(self) -> int:
+        return int(self.edges.shape[0])
