@@ -1,0 +1,79 @@
+"""Per-topic bandwidth statistics, as `ros2 topic bw` reports them: mean bytes per second over a
+window and message size mean / min / max. Fed with (time, size) samples from live topics or a
+bag; knows nothing of ROS."""
+from __future__ import annotations
+
+from collections import defaultdict, deque
+from dataclasses import dataclass
+
+
+@dataclass
+class TopicBandwidth:
+    topic: str
+    messages: int
+    bytes_per_s: float
+    mean_bytes: float
+    min_bytes: int
+    max_bytes: int
+    total_bytes: int
+
+    def as_row(self) -> list[str]:
+        return [self.topic, str(self.messages), human_bytes(self.bytes_per_s) + "/s",
+                human_bytes(self.mean_bytes), human_bytes(self.min_bytes),
+                human_bytes(self.max_bytes), human_bytes(self.total_bytes)]
+
+
+HEADER = ["topic", "msgs", "mean rate", "mean size", "min", "max", "total"]
+
+
+def human_bytes(n: float) -> str:
+    for unit, scale in (("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.2f} {unit}"
+    return f"{n:.0f} B"
+
+
+class BandwidthMeter:
+    """window_s: samples older than this are forgotten (None: keep all, for bags and totals)."""
+
+    def __init__(self, window_s: float | None = None):
+        self.window_s = window_s
+        self.samples: dict[str, deque] = defaultdict(deque)
+        self.totals: dict[str, int] = defaultdict(int)
+        self.counts: dict[str, int] = defaultdict(int)
+
+    def add(self, topic: str, t: float, size: int) -> None:
+        q = self.samples[topic]
+        q.append((t, size))
+        self.totals[topic] += size
+        self.counts[topic] += 1
+        if self.window_s is not None:
+            while q and q[0][0] < t - self.window_s:
+                q.popleft()
+
+    def report(self, now: float | None = None, span: float | None = None) -> list[TopicBandwidth]:
+        """One row per topic. The rate divides the window's bytes by `span` (seconds) if given,
+        else by the window length (live) or the time between first and last sample (bags)."""
+        rows = []
+        for topic in sorted(self.samples):
+            q = self.samples[topic]
+            if not q:
+                continue
+            sizes = [s for _, s in q]
+            if span is None:
+                duration = self.window_s if self.window_s is not None else (q[-1][0] - q[0][0])
+            else:
+                duration = span
+            rate = sum(sizes) / duration if duration and duration > 0 else float(sum(sizes))
+            rows.append(TopicBandwidth(topic, len(sizes), rate, sum(sizes) / len(sizes),
+                                       min(sizes), max(sizes), self.totals[topic]))
+        return rows
+
+
+def format_table(header: list[str], rows: list[list[str]]) -> str:
+    """A plain text table with aligned columns."""
+    widths = [max(len(str(r[i])) for r in [header] + rows) for i in range(len(header))]
+    lines = ["  ".join(str(c).ljust(w) for c, w in zip(header, widths))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(str(c).ljust(w) for c, w in zip(r, widths)) for r in rows]
+    return "\n".join(lines)

@@ -1,0 +1,192 @@
+"""sgreg_msgs <-> the plain types of sgreg_core.runtime. No decisions here: only field copies,
+with malformed messages raising ConversionError (the node logs it and counts it)."""
+from __future__ import annotations
+
+import array
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from scipy.spatial.transform import Rotation
+from geometry_msgs.msg import TransformStamped
+from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
+
+from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMessage
+from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
+from sgreg_core.types import InstanceMap as CoreInstanceMap
+
+from .pointcloud import PointCloudError, pack_xyz_id, unpack_xyz_id
+
+
+class ConversionError(ValueError):
+    """A message whose fields do not fit together."""
+
+
+def stamp_to_sec(t: Time) -> float:
+    return float(t.sec) + 1e-9 * float(t.nanosec)
+
+
+def sec_to_stamp(s: float) -> Time:
+    sec = int(np.floor(s))
+    return Time(sec=sec, nanosec=int(round((s - sec) * 1e9)) % 1_000_000_000)
+
+
+def _f32(values, n: int, name: str) -> np.ndarray:
+    a = np.asarray(values, dtype=np.float32)
+    if a.size != 3 * n:
+        raise ConversionError(f"{name} has {a.size} values, expected 3 x {n} nodes")
+    return a.reshape(n, 3)
+
+
+# ---- instance maps -----------------------------------------------------------------------
+def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
+    n = len(msg.instance_ids)
+    if len(msg.labels) != n or len(msg.label_scores) not in (0, n):
+        raise ConversionError(f"{n} instance ids but {len(msg.labels)} labels and "
+                              f"{len(msg.label_scores)} scores")
+    try:
+        points, inst = unpack_xyz_id(msg.points, "instance")
+    except PointCloudError as exc:
+        raise ConversionError(f"points: {exc}") from None
+    ids = [int(i) for i in msg.instance_ids]
+    scores = list(msg.label_scores) or [1.0] * n
+    return CoreInstanceMap(points=points, instance=inst.astype(np.int64).astype(np.int32),
+                           labels=dict(zip(ids, msg.labels)),
+                           scores={i: float(s) for i, s in zip(ids, scores)})
+
+
+def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, stamp: float) -> InstanceMap:
+    msg = InstanceMap()
+    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.frame_id = f"{agent_id}/map"
+    msg.agent_id, msg.sequence = agent_id, int(sequence)
+    ids = sorted(imap.labels)
+    msg.instance_ids = ids
+    msg.labels = [imap.labels[i] for i in ids]
+    msg.label_scores = [float(imap.scores.get(i, 1.0)) for i in ids]
+    inst = np.where(imap.instance > 0, imap.instance, 0).astype(np.uint32)
+    msg.points = pack_xyz_id(imap.points, inst, "instance", frame_id=msg.header.frame_id,
+                             stamp=msg.header.stamp)
+    return msg
+
+
+# ---- coarse and dense graphs ---------------------------------------------------------------
+def coarse_to_msg(g: GraphMessage, encoding: int) -> CoarseGraph:
+    msg = CoarseGraph()
+    msg.header.stamp = sec_to_stamp(g.stamp)
+    msg.header.frame_id = f"{g.agent_id}/map"
+    msg.agent_id, msg.sequence, msg.map_sequence = g.agent_id, int(g.sequence), int(g.map_sequence)
+    msg.weights_id = g.weights_id
+    msg.node_ids = array.array("I", np.asarray(g.node_ids, np.uint32).tobytes())
+    msg.centers = array.array("f", np.asarray(g.centers, "<f4").tobytes())
+    msg.extents = array.array("f", np.asarray(g.extents, "<f4").tobytes())
+    payload, scales = pack_features(g.x, encoding)
+    msg.feature_dim = int(g.x.shape[1])
+    msg.feature_encoding = encoding
+    msg.feature_scales = array.array("f", scales.astype("<f4").tobytes())
+    msg.features = payload
+    return msg
+
+
+def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
+    n = len(msg.node_ids)
+    try:
+        x = unpack_features(bytes(msg.features), n, int(msg.feature_dim), int(msg.feature_encoding),
+                            np.asarray(msg.feature_scales, np.float32))
+    except WireError as exc:
+        raise ConversionError(f"features: {exc}") from None
+    return GraphMessage(agent_id=msg.agent_id, sequence=int(msg.sequence),
+                        map_sequence=int(msg.map_sequence), weights_id=msg.weights_id,
+                        stamp=stamp_to_sec(msg.header.stamp),
+                        node_ids=np.asarray(msg.node_ids, np.int64),
+                        centers=_f32(msg.centers, n, "centers"),
+                        extents=_f32(msg.extents, n, "extents"), x=x)
+
+
+def dense_to_msg(g: GraphMessage, encoding: int) -> DenseGraph:
+    msg = DenseGraph()
+    msg.graph = coarse_to_msg(g, encoding)
+    msg.header = msg.graph.header
+    msg.agent_id, msg.sequence = g.agent_id, int(g.sequence)
+    msg.requester, msg.request_sequence = g.requester, int(g.request_sequence)
+    node_ids = np.asarray(g.node_ids, np.uint32)[g.point_node]
+    msg.points = pack_xyz_id(g.points, node_ids, "node_id", frame_id=msg.header.frame_id,
+                             stamp=msg.header.stamp)
+    return msg
+
+
+def dense_from_msg(msg: DenseGraph) -> GraphMessage:
+    g = coarse_from_msg(msg.graph)
+    if msg.agent_id != g.agent_id:
+        raise ConversionError(f"dense graph from {msg.agent_id!r} carries a graph of {g.agent_id!r}")
+    try:
+        points, node_ids = unpack_xyz_id(msg.points, "node_id")
+    except PointCloudError as exc:
+        raise ConversionError(f"points: {exc}") from None
+    order = np.argsort(g.node_ids)
+    pos = np.searchsorted(g.node_ids[order], node_ids.astype(np.int64))
+    pos = np.clip(pos, 0, max(g.num_nodes - 1, 0))
+    if g.num_nodes == 0 or not np.array_equal(g.node_ids[order][pos], node_ids.astype(np.int64)):
+        raise ConversionError("points carry node ids that are not in the graph")
+    g.sequence = int(msg.sequence)
+    g.points, g.point_node = points, order[pos]
+    g.requester, g.request_sequence = msg.requester, int(msg.request_sequence)
+    return g
+
+
+# ---- requests and results ------------------------------------------------------------------
+def request_to_msg(r: DenseRequestMessage, stamp: float) -> DenseRequest:
+    msg = DenseRequest()
+    msg.header.stamp = sec_to_stamp(stamp)
+    msg.from_agent, msg.to_agent = r.from_agent, r.to_agent
+    msg.sequence, msg.coarse_sequence = int(r.sequence), int(r.coarse_sequence)
+    msg.weights_id = r.weights_id
+    msg.node_ids = array.array("I", np.asarray(r.node_ids, np.uint32).tobytes())
+    return msg
+
+
+def request_from_msg(msg: DenseRequest) -> DenseRequestMessage:
+    return DenseRequestMessage(from_agent=msg.from_agent, to_agent=msg.to_agent,
+                               sequence=int(msg.sequence), coarse_sequence=int(msg.coarse_sequence),
+                               weights_id=msg.weights_id, node_ids=np.asarray(msg.node_ids, np.int64))
+
+
+def transform_msg(T: np.ndarray, agent_id: str, peer_id: str, stamp: float) -> TransformStamped:
+    t = TransformStamped()
+    t.header.stamp = sec_to_stamp(stamp)
+    t.header.frame_id = f"{peer_id}/map"
+    t.child_frame_id = f"{agent_id}/map"
+    t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
+        float(v) for v in T[:3, 3])
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()  # x, y, z, w
+    r = t.transform.rotation
+    r.x, r.y, r.z, r.w = (float(v) for v in q)
+    return t
+
+
+def transform_from_msg(t: TransformStamped) -> np.ndarray:
+    T = np.eye(4)
+    r = t.transform.rotation
+    T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    tr = t.transform.translation
+    T[:3, 3] = [tr.x, tr.y, tr.z]
+    return T
+
+
+def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
+                  counters: dict) -> RegistrationResult:
+    msg = RegistrationResult()
+    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.frame_id = f"{e.peer_id}/map"
+    msg.agent_id, msg.peer_id, msg.sequence = agent_id, e.peer_id, int(sequence)
+    msg.transform = transform_msg(e.T, agent_id, e.peer_id, stamp)
+    msg.verified, msg.mode, msg.reason = bool(e.verified), e.mode, e.reason
+    msg.node_matches, msg.correspondences, msg.inliers = (
+        int(e.node_matches), int(e.correspondences), int(e.inliers))
+    msg.inlier_ratio, msg.confidence = float(e.inlier_ratio), float(e.confidence)
+    msg.peer_coarse_sequence, msg.peer_dense_sequence = (
+        int(e.peer_coarse_sequence), int(e.peer_dense_sequence))
+    msg.timing_names = list(e.timing_ms)
+    msg.timing_ms = [float(v) for v in e.timing_ms.values()]
+    msg.counter_names = list(counters)
+    msg.counter_values = [int(v) for v in counters.values()]
+    return msg

@@ -1,0 +1,25 @@
+"""QoS of every sgreg topic, in one place.
+
+- mapping/instances: reliable, depth 2, volatile. Each message is a full snapshot; only the
+  newest matters, but a lost one costs a second of map growth, so reliable.
+- sgreg/coarse: reliable, depth 1, transient local. A late joiner (or a restarted peer) gets
+  the latest coarse graph at once instead of waiting a period; older ones are worthless.
+- sgreg/dense_request: reliable, depth 10, volatile. Small; each must arrive once.
+- sgreg/dense: reliable, depth 2, volatile. Large and only sent on request; never replayed to
+  late joiners (that would resend megabytes nobody asked for).
+- sgreg/transform, sgreg/registration: reliable, depth 10, volatile.
+"""
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+
+def _qos(depth: int, transient: bool = False) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
+
+
+INSTANCES = _qos(2)
+COARSE = _qos(1, transient=True)
+DENSE_REQUEST = _qos(10)
+DENSE = _qos(2)
+RESULTS = _qos(10)

@@ -1,0 +1,28 @@
+"""Start-up and shutdown shared by the executables: init, build the node, spin, and turn Ctrl-C,
+SIGTERM and bad parameters into a clean exit."""
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+
+from .params import ParameterError
+
+
+def run_node(factory, args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+        return 0
+    except ParameterError as exc:
+        print(f"[sgreg] refusing to start: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,40 @@
+"""The synth, graph and pairs subcommands: output, files, exit codes on bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from sgreg_core.cli import main
+
+
+def test_synth_graph_pairs(tmp_path, capsys):
+    scan = tmp_path / "scene"
+    assert main(["synth", str(scan), "--seed", "3", "--png"]) == 0
+    out = capsys.readouterr().out
+    assert "nodes:" in out and "edges:" in out and "labels:" in out and "points:" in out
+    assert (scan / "points.npy").is_file() and (scan / "graph.png").stat().st_size > 10_000
+
+    png = tmp_path / "g.png"
+    assert main(["graph", str(scan), "--png", str(png), "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "build time" in out and png.is_file()
+
+    out_dir = tmp_path / "pairs"
+    assert main(["pairs", str(scan), str(out_dir), "--n", "2", "--seed", "1", "--noise", "jitter,drop"]) == 0
+    assert "[2/2]" in capsys.readouterr().out
+    gt = json.loads((out_dir / "pair_001" / "gt.json").read_text())
+    assert np.array(gt["T_src_ref"]).shape == (4, 4) and gt["gt_node_pairs"]
+    assert (out_dir / "pair_000" / "src" / "instances.json").is_file()
+
+
+@pytest.mark.parametrize("argv", [
+    ["graph", "{tmp}/missing"],
+    ["pairs", "{tmp}", "{tmp}/out"],
+    ["pairs", "{tmp}/missing", "{tmp}/out", "--noise", "bogus"],
+    ["synth", "{tmp}/s", "--noise", "bogus"],
+    ["synth", "{tmp}/s", "--rooms", "0"],
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv):
+    assert main([a.format(tmp=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("sgreg ") and "Traceback" not in err
