@@ -61,11 +61,13 @@ class PlayReport:
 
 
 def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
-             log=print, should_stop=lambda: False, delay: float = 1.0) -> PlayReport:
+             log=print, should_stop=lambda: False, delay: float = 1.0,
+             wait_subscribers: float = 0.0) -> PlayReport:
     """Publish a bag's messages with their recorded timing (scaled by 1/rate) from `node`.
 
     `delay` seconds pass between creating the publishers and the first message, so that
-    subscribers (a recorder discovers topics only once they exist) can match them.
+    subscribers (a recorder discovers topics only once they exist) can match them; with
+    `wait_subscribers` > 0, play first waits up to that long until every topic has a subscriber.
     Each message is checked by deserialising it first; one that does not decode is reported
     and skipped, and the rest of the bag plays on."""
     if rate <= 0:
@@ -79,15 +81,18 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
         for c in conns:
             if c.topic not in pubs:
                 pubs[c.topic] = node.create_publisher(classes[c.id], c.topic, qos_for(c.topic))
+        deadline = time.monotonic() + wait_subscribers
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
+            time.sleep(0.05)
         time.sleep(delay)
         t0_bag, t0_wall = None, time.monotonic()
         for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
             if should_stop():
                 break
             t0_bag = t_ns if t0_bag is None else t0_bag
-            delay = t0_wall + (t_ns - t0_bag) * 1e-9 / rate - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            wait = t0_wall + (t_ns - t0_bag) * 1e-9 / rate - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
             try:
                 deserialize_message(bytes(raw), classes[conn.id])
             except Exception as exc:

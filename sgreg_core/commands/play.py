@@ -13,6 +13,8 @@ def add_arguments(p):
     p.add_argument("--topics", nargs="*", help="play only these topics")
     p.add_argument("--delay", type=float, default=1.0,
                    help="seconds between advertising the topics and the first message")
+    p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                   help="first wait up to S seconds until every topic has a subscriber")
 
 
 def run(args) -> int:
@@ -25,6 +27,7 @@ def run(args) -> int:
     node = rclpy.create_node("sgreg_play")
     try:
         report = play_bag(node, args.bag, rate=args.rate, topics=args.topics, delay=args.delay,
+                          wait_subscribers=args.wait_subscribers,
                           log=lambda s: print(f"sgreg play: {s}", file=sys.stderr, flush=True))
     except BagError as exc:
         print(f"sgreg play: {exc}", file=sys.stderr)

@@ -57,7 +57,7 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     first = rec.stdout.readline()
     assert first.startswith("recorder ready"), first
-    play = subprocess.run(SGREG + ["play", str(src), "--rate", "0.5", "--delay", "3"], capture_output=True,
+    play = subprocess.run(SGREG + ["play", str(src), "--rate", "0.5", "--delay", "1", "--wait-subscribers", "30"], capture_output=True,
                           text=True, timeout=60)
     rec_out = first + rec.communicate(timeout=60)[0]
     assert play.returncode == 0, play.stderr
