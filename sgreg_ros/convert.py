@@ -6,7 +6,9 @@ import array
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from rclpy.serialization import deserialize_message
 from scipy.spatial.transform import Rotation
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 
@@ -19,6 +21,16 @@ from .pointcloud import PointCloudError, pack_xyz_id, unpack_xyz_id
 
 class ConversionError(ValueError):
     """A message whose fields do not fit together."""
+
+
+def decode(raw: bytes, cls):
+    """CDR bytes -> message; ConversionError when they do not decode. Nodes subscribe raw and
+    decode here so that a malformed message becomes a counted refusal, not an exception inside
+    the executor (which would take the node down)."""
+    try:
+        return deserialize_message(raw, cls)
+    except Exception as exc:
+        raise ConversionError(f"undecodable {cls.__name__} ({len(raw)} bytes): {exc}") from None
 
 
 def stamp_to_sec(t: Time) -> float:
@@ -190,3 +202,13 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     msg.counter_names = list(counters)
     msg.counter_values = [int(v) for v in counters.values()]
     return msg
+
+
+def diagnostics_msg(name: str, agent_id: str, counters: dict, stamp: float, summary: str) -> DiagnosticArray:
+    """One DiagnosticStatus with every counter as a key/value: standard ROS tools display it."""
+    arr = DiagnosticArray()
+    arr.header.stamp = sec_to_stamp(stamp)
+    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=agent_id)
+    status.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counters.items())]
+    arr.status = [status]
+    return arr

@@ -1,0 +1,74 @@
+"""Start and stop the node processes of N agents on one machine: what a launch file does on a
+full ROS 2 install, for `sgreg agents` and `sgreg replay`."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+EXECUTABLES = ("agent", "registration")
+DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
+
+
+@dataclass
+class NodeProcess:
+    agent: str
+    executable: str
+    proc: subprocess.Popen
+    log_path: Path | None = None
+
+
+def node_command(executable: str, agent: str, params_file: str | Path | None = None,
+                 overrides: dict | None = None) -> list[str]:
+    """The command line of one node: `python -m sgreg_ros.<exe>_node --ros-args -r __ns:=/<agent> ...`."""
+    cmd = [sys.executable, "-m", f"sgreg_ros.{executable}_node", "--ros-args", "-r", f"__ns:=/{agent}"]
+    params_file = params_file or (DEFAULT_PARAMS if DEFAULT_PARAMS.exists() else None)
+    if params_file:
+        cmd += ["--params-file", str(params_file)]
+    for key, value in (overrides or {}).items():
+        if isinstance(value, bool):
+            value = str(value).lower()
+        elif isinstance(value, (list, tuple)):
+            value = "[" + ",".join(f"'{v}'" if isinstance(v, str) else str(v) for v in value) + "]"
+        cmd += ["-p", f"{key}:={value}"]
+    return cmd
+
+
+def start_agents(names: list[str], params_file=None, overrides: dict | None = None,
+                 log_dir: Path | None = None, executables=EXECUTABLES) -> list[NodeProcess]:
+    """One process per (agent, executable), each in its own process group."""
+    procs = []
+    for name in names:
+        for exe in executables:
+            log_path = None
+            out = None
+            if log_dir is not None:
+                log_dir.mkdir(parents=True, exist_ok=True)
+                log_path = log_dir / f"{name}_{exe}.log"
+                out = open(log_path, "w")
+            proc = subprocess.Popen(node_command(exe, name, params_file, overrides),
+                                    stdout=out, stderr=subprocess.STDOUT if out else None,
+                                    env=dict(os.environ), start_new_session=True)
+            procs.append(NodeProcess(name, exe, proc, log_path))
+    return procs
+
+
+def stop(procs: list[NodeProcess], timeout: float = 10.0) -> None:
+    """SIGINT every node (a clean rclpy shutdown), then SIGKILL what is left after `timeout`."""
+    for p in procs:
+        if p.proc.poll() is None:
+            try:
+                os.killpg(p.proc.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        try:
+            p.proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            os.killpg(p.proc.pid, signal.SIGKILL)
+            p.proc.wait()

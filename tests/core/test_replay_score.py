@@ -1,0 +1,47 @@
+"""Scoring of replay results against ground truth, on hand-made records."""
+import numpy as np
+
+from sgreg_core.geometry import invert_transform, yaw_transform
+from sgreg_core.replay_score import ResultRecord, ground_truth, score_replay
+
+FRAMES = {"a": yaw_transform(0.3, (1.0, 2.0, 0.0)), "b": yaw_transform(-1.2, (-4.0, 0.5, 0.2))}
+
+
+def rec(t, agent, peer, T, verified, mode="coarse", ms=10.0):
+    return ResultRecord(t=t, agent=agent, peer=peer, T=T, verified=verified, mode=mode, reason="ok",
+                        node_matches=5, inliers=4, total_ms=ms)
+
+
+def test_ground_truth_maps_agent_into_peer():
+    T_ab = ground_truth(FRAMES, "a", "b")
+    p_scene = np.array([0.3, -2.0, 1.0, 1.0])
+    p_a = invert_transform(FRAMES["a"]) @ p_scene
+    p_b = invert_transform(FRAMES["b"]) @ p_scene
+    assert np.allclose(T_ab @ p_a, p_b)
+    assert np.allclose(ground_truth(FRAMES, "b", "a"), invert_transform(T_ab))
+
+
+def test_success_rate_counts_verified_correct_frames_only():
+    gt = ground_truth(FRAMES, "a", "b")
+    off = gt.copy()
+    off[0, 3] += 0.8                                   # 0.8 m off: fails RTE < 0.5
+    slightly = gt.copy()
+    slightly[1, 3] += 0.3                              # within tolerance
+    records = [rec(1.0, "a", "b", np.eye(4), False),          # no estimate worth the name
+               rec(2.0, "a", "b", slightly, False),           # right but not verified
+               rec(3.0, "a", "b", gt, True, "dense", 120.0),  # success
+               rec(4.0, "a", "b", off, True),                 # wrong and verified
+               rec(5.0, "b", "a", invert_transform(gt), True, "merged", 14.0)]
+    s = score_replay(records, FRAMES)
+    assert s.query_frames == 5
+    assert s.success_rate == 2 / 5
+    assert s.success_rate_any == 3 / 5
+    assert s.wrong_verified == 1 and s.verified == 3
+    assert s.first_success_s == 3.0
+    assert s.dense_latency_ms["n"] == 1 and s.dense_latency_ms["median"] == 120.0
+    assert s.coarse_latency_ms["n"] == 4
+
+
+def test_empty_replay():
+    s = score_replay([], FRAMES)
+    assert s.query_frames == 0 and s.success_rate == 0.0 and s.first_success_s is None
