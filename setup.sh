@@ -90,10 +90,11 @@ fi
 # --- 5. ament index entries: what `ros2 run sgreg_ros <exe>` looks for ------------------
 # pip does not install setup.py's data_files, so write them into the venv prefix here.
 index="$VENV/share/ament_index/resource_index/packages"
-mkdir -p "$index" "$VENV/share/sgreg_ros/config" "$VENV/lib/sgreg_ros"
+mkdir -p "$index" "$VENV/share/sgreg_ros/config" "$VENV/share/sgreg_ros/launch" "$VENV/lib/sgreg_ros"
 : > "$index/sgreg_ros"
 cp "$ROOT/package.xml" "$VENV/share/sgreg_ros/package.xml"
-cp "$ROOT"/config/*.yaml "$VENV/share/sgreg_ros/config/" 2>/dev/null || true
+cp "$ROOT"/config/*.yaml "$VENV/share/sgreg_ros/config/"
+cp "$ROOT"/launch/*.py "$VENV/share/sgreg_ros/launch/"
 for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))"); do
   cat > "$VENV/lib/sgreg_ros/$exe" <<SH
 #!/bin/sh
