@@ -1,0 +1,277 @@
+"""Robust pose estimation from point (or node-center) correspondences with a verdict.
+
+Pipeline (paper section V, after G3Reg): NMS -> GNC-TLS over all correspondences -> if its
+inlier ratio is low, one maximum clique per level of a compatibility-graph pyramid, a GNC
+candidate per clique -> the verification on the clouds picks the best candidate -> success
+only when the winner is well supported. Optional ICP refinement is reported separately.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .clique import clique_pyramid
+from .gnc import GncConfig, gnc_tls
+from .nms import nms_correspondences
+from .solvers import fit_rigid, principal_spread, residuals
+from .verify import CloudVerifier, Verification
+
+
+@dataclass
+class PoseConfig:
+    """Settings of `estimate_pose`; defaults suit indoor rooms with 5 cm voxels.
+
+    dof:                 6 returns a full SE(3); 4 fits yaw + translation only (roll/pitch
+                         known from the IMU since maps are gravity-aligned).
+    noise_bound:         m, largest residual of an inlier (GNC bound and inlier counting).
+    nms_radius:          m, voxel of the correspondence NMS; 0 disables it.
+    gnc_inlier_gate:     GNC over all is trusted when its inlier ratio reaches this; below it
+                         the clique pyramid runs (G3Reg uses 0.3).
+    clique_deltas:       m, compatibility bounds of the pyramid levels, one clique per level.
+    max_exact_vertices:  largest reduced kernel handed to the exact clique solver.
+    min_correspondences: fewer (after NMS) gives reason "too_few_correspondences".
+    min_inliers:         success needs at least this many inliers; random correspondences
+                         between unrelated scans rarely agree on more than ~5.
+    min_inlier_spread:   m, success needs the inliers' second principal standard deviation
+                         (horizontal spread for dof=4) to reach this: inliers on one line or
+                         in one spot (one small object) do not fix a room-scale pose.
+    verify_voxel:        m, voxel of the clouds used for verification (and ICP).
+    verify_tau:          m, support distance of the verification.
+    min_fitness:         success needs this share of (voxelised) source points supported by
+                         the reference cloud; ignored when no clouds are given.
+    verify_max_points:   source points kept for verification (seeded random subsample).
+    icp:                 refine the accepted pose with point-to-plane ICP (reported as T_icp).
+    icp_max_iters:       ICP iterations.
+    icp_distance:        m, ICP correspondence distance.
+    gnc:                 GNC-TLS settings (its dof is overridden by `dof`).
+    seed:                seed of every random choice.
+    """
+
+    dof: int = 6
+    noise_bound: float = 0.1
+    nms_radius: float = 0.05
+    gnc_inlier_gate: float = 0.3
+    clique_deltas: tuple[float, ...] = (0.1, 0.2, 0.4)
+    max_exact_vertices: int = 300
+    min_correspondences: int = 3
+    min_inliers: int = 8
+    min_inlier_spread: float = 0.2
+    verify_voxel: float = 0.05
+    verify_tau: float = 0.1
+    min_fitness: float = 0.3
+    verify_max_points: int = 5000
+    icp: bool = False
+    icp_max_iters: int = 30
+    icp_distance: float = 0.1
+    gnc: GncConfig = field(default_factory=GncConfig)
+    seed: int = 0
+
+
+@dataclass
+class PoseResult:
+    """Outcome of `estimate_pose`.
+
+    T:                   (4, 4) float64 mapping source into reference (identity if no fit).
+    success:             True only when the estimate is well supported (see PoseConfig).
+    reason:              "ok", "invalid_input", "too_few_correspondences",
+                         "degenerate_geometry", "too_few_inliers", "verification_failed".
+    inliers:             correspondences with residual <= noise bound under T.
+    inlier_ratio:        inliers / num_correspondences.
+    inlier_mask:         (N,) bool over the input correspondences.
+    num_correspondences: correspondences left after dropping non-finite ones and NMS.
+    candidates:          candidate poses compared.
+    used_pyramid:        True when GNC's inlier ratio was below the gate.
+    clique_sizes:        maximum-clique size per pyramid level (empty without pyramid).
+    spread:              m, inlier spread used by the success rule.
+    fitness, overlap, verify_score, rmse: the winner's `Verification` (NaN without clouds).
+    T_icp, icp_fitness:  ICP refinement and its fitness (None / NaN when not run).
+    timing_ms:           milliseconds per step and "total".
+    """
+
+    T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    success: bool = False
+    reason: str = "invalid_input"
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    inlier_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    num_correspondences: int = 0
+    candidates: int = 0
+    used_pyramid: bool = False
+    clique_sizes: list[int] = field(default_factory=list)
+    spread: float = 0.0
+    fitness: float = float("nan")
+    overlap: float = float("nan")
+    verify_score: float = float("nan")
+    rmse: float = float("nan")
+    T_icp: np.ndarray | None = None
+    icp_fitness: float = float("nan")
+    timing_ms: dict[str, float] = field(default_factory=dict)
+
+
+class _Clock:
+    """Accumulates wall time per named step."""
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {}
+        self.t0 = self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (now - self.last)
+        self.last = now
+
+    def done(self) -> dict[str, float]:
+        self.ms["total"] = 1e3 * (time.perf_counter() - self.t0)
+        return self.ms
+
+
+def _as_points(a) -> np.ndarray | None:
+    """(N, 3) float64 view of `a`, or None when it is not shaped like points."""
+    try:
+        a = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return a if a.ndim == 2 and a.shape[1] == 3 else None
+
+
+def _per_corr(a, n: int) -> np.ndarray | None:
+    """(n,) float64 array from a scalar or per-correspondence array, None if misshapen."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    return a if a.shape == (n,) else None
+
+
+def _spread(pts: np.ndarray, dof: int) -> float:
+    """Second principal std (SE(3)) or largest horizontal std (4-DoF) of the inliers."""
+    if dof == 4:
+        return float(principal_spread(np.c_[pts[:, :2], np.zeros(len(pts))])[0])
+    return float(principal_spread(pts)[1])
+
+
+def _refine(src, ref, w, bounds, T, dof) -> np.ndarray:
+    """Re-fit on everything T calls an inlier: a clique holds only mutually consistent
+    correspondences, the full set may hold more inliers that sharpen the estimate."""
+    inl = residuals(T, src, ref) <= bounds
+    fit = fit_rigid(src[inl], ref[inl], w[inl], dof)
+    return fit.T if fit.ok else T
+
+
+def _icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
+    """Point-to-plane ICP (open3d) of the verifier's voxelised clouds starting at T."""
+    import open3d as o3d  # slow import, only when ICP is asked for
+
+    reg = o3d.pipelines.registration
+    s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(verifier.src))
+    r = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(verifier.ref))
+    r.normals = o3d.utility.Vector3dVector(verifier.normals)
+    out = reg.registration_icp(s, r, cfg.icp_distance, T,
+                               reg.TransformationEstimationPointToPlane(),
+                               reg.ICPConvergenceCriteria(max_iteration=cfg.icp_max_iters))
+    return np.asarray(out.transformation, dtype=np.float64)
+
+
+def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None,
+                  cfg: PoseConfig = PoseConfig(), noise_bounds=None) -> PoseResult:
+    """Estimate T with ref ~ T src from correspondences (src_pts[i], ref_pts[i]); never raises
+    on bad data.
+
+    weights:      optional (N,) confidences (NMS ranking and weighted fits); default 1.
+    src_cloud, ref_cloud: optional (M, 3) clouds for verification (and ICP); without them
+                  success rests on the inlier count and spread only.
+    noise_bounds: optional (N,) per-correspondence inlier bounds (m), e.g. from node-center
+                  covariances; default cfg.noise_bound for all.
+    """
+    clock = _Clock()
+    src, ref = _as_points(src_pts), _as_points(ref_pts)
+    if src is None or ref is None or src.shape != ref.shape:
+        return PoseResult(reason="invalid_input", timing_ms=clock.done())
+    n_in = src.shape[0]
+    w = _per_corr(1.0 if weights is None else weights, n_in)
+    b = _per_corr(cfg.noise_bound if noise_bounds is None else noise_bounds, n_in)
+    if w is None or b is None:
+        return PoseResult(reason="invalid_input", inlier_mask=np.zeros(n_in, bool),
+                          timing_ms=clock.done())
+    finite = (np.isfinite(src).all(1) & np.isfinite(ref).all(1) & np.isfinite(w) & (w >= 0)
+              & np.isfinite(b) & (b > 0))
+    keep = np.flatnonzero(finite)
+    keep = keep[nms_correspondences(src[keep], ref[keep], w[keep], cfg.nms_radius)]
+    clock.lap("nms")
+    result = PoseResult(reason="too_few_correspondences", inlier_mask=np.zeros(n_in, bool),
+                        num_correspondences=int(keep.size))
+    if keep.size < cfg.min_correspondences:
+        result.timing_ms = clock.done()
+        return result
+    s, r, wk, bk = src[keep], ref[keep], w[keep], b[keep]
+    gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
+
+    gnc = gnc_tls(s, r, bk, wk, gcfg)
+    clock.lap("gnc")
+    if not gnc.ok:
+        result.reason = gnc.reason
+        result.timing_ms = clock.done()
+        return result
+    candidates = [gnc.T]
+    if gnc.inlier_ratio < cfg.gnc_inlier_gate:
+        result.used_pyramid = True
+        levels = clique_pyramid(s, r, cfg.clique_deltas, bk, cfg.max_exact_vertices)
+        clock.lap("clique")
+        result.clique_sizes = [int(lv.indices.size) for lv in levels]
+        for lv in levels:
+            idx = lv.indices
+            if idx.size < 3:
+                continue
+            # Clique members agree pairwise within delta, so their residuals reach ~delta/2.
+            cb = np.maximum(bk[idx], 0.5 * lv.delta)
+            cand = gnc_tls(s[idx], r[idx], cb, wk[idx], gcfg)
+            if cand.ok:
+                candidates.append(_refine(s, r, wk, bk, cand.T, cfg.dof))
+        clock.lap("candidates")
+
+    have_clouds = src_cloud is not None and ref_cloud is not None
+    verifier = None
+    if have_clouds:
+        sc, rc = _as_points(src_cloud), _as_points(ref_cloud)
+        if sc is not None and rc is not None:
+            verifier = CloudVerifier(sc, rc, cfg.verify_voxel, cfg.verify_tau,
+                                     cfg.verify_max_points, cfg.seed)
+    inlier_counts = [int((residuals(T, s, r) <= bk).sum()) for T in candidates]
+    if verifier is not None and verifier.valid:
+        checks = [verifier(T) for T in candidates]
+        # Rank by verification, inlier count breaks ties.
+        best = max(range(len(candidates)), key=lambda i: (checks[i].score, inlier_counts[i]))
+        ver: Verification | None = checks[best]
+    else:
+        best = int(np.argmax(inlier_counts))
+        ver = None
+    clock.lap("verify")
+
+    T = candidates[best]
+    inl = residuals(T, s, r) <= bk
+    result.T = T
+    result.candidates = len(candidates)
+    result.inliers = int(inl.sum())
+    result.inlier_ratio = float(inl.mean())
+    result.inlier_mask[keep[inl]] = True
+    result.spread = _spread(s[inl], cfg.dof) if inl.any() else 0.0
+    if ver is not None:
+        result.fitness, result.overlap = ver.fitness, ver.overlap
+        result.verify_score, result.rmse = ver.score, ver.rmse
+
+    if result.inliers < cfg.min_inliers:
+        result.reason = "too_few_inliers"
+    elif result.spread < cfg.min_inlier_spread:
+        result.reason = "degenerate_geometry"
+    elif have_clouds and (ver is None or ver.fitness < cfg.min_fitness):
+        result.reason = "verification_failed"
+    else:
+        result.reason = "ok"
+        result.success = True
+    if result.success and cfg.icp and verifier is not None:
+        result.T_icp = _icp(verifier, T, cfg)
+        result.icp_fitness = verifier(result.T_icp).fitness
+        clock.lap("icp")
+    result.timing_ms = clock.done()
+    return result

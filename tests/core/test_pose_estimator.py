@@ -1,0 +1,183 @@
+"""End-to-end behaviour of sgreg_core.pose.estimate_pose: accuracy under outliers, verdicts on
+degenerate or unrelated inputs, 4-DoF mode, verification on clouds."""
+import numpy as np
+import pytest
+
+from sgreg_core.pose import PoseConfig, apply_T, estimate_pose, make_T, yaw_rotation
+
+ROOM = np.array([8.0, 6.0, 3.0])
+
+
+def pose_error(T, T_gt):
+    dR = T[:3, :3].T @ T_gt[:3, :3]
+    ang = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+    return np.linalg.norm(T[:3, 3] - T_gt[:3, 3]), ang
+
+
+def random_room_pose(rng, tilt=0.0):
+    """Random yaw in [-180, 180) plus a room-scale translation (and optional small tilt)."""
+    R = yaw_rotation(rng.uniform(-np.pi, np.pi))
+    if tilt:
+        c, s = np.cos(tilt), np.sin(tilt)
+        R = R @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    return make_T(R, rng.uniform(-5, 5, 3))
+
+
+def correspondences(rng, n, outlier_ratio, T, noise=0.01):
+    """n correspondences in a room; outliers pair a source point with a random point of the
+    same (transformed) room, so they are spatially indistinguishable from inliers."""
+    src = rng.uniform(0, ROOM, (n, 3))
+    ref = apply_T(T, src) + rng.normal(0, noise, (n, 3))
+    k = int(round(outlier_ratio * n))
+    ref[:k] = apply_T(T, rng.uniform(0, ROOM, (k, 3)))
+    return src, ref, k
+
+
+def box_room(rng, n_wall=4000, n_objects=8, size=ROOM):
+    """Points on the floor/walls of a room plus random boxes in it (surface samples)."""
+    def box(center, extent, m):
+        p = rng.uniform(-0.5, 0.5, (m, 3))
+        ax = rng.integers(0, 3, m)
+        p[np.arange(m), ax] = np.sign(p[np.arange(m), ax] + 1e-9) * 0.5
+        return center + p * extent
+    parts = [box(size / 2, size, n_wall)]
+    for _ in range(n_objects):
+        ext = rng.uniform([0.3, 0.3, 0.4], [1.5, 1.0, 1.2])
+        ctr = np.r_[rng.uniform(ext[:2] / 2 + 0.2, size[:2] - ext[:2] / 2 - 0.2), ext[2] / 2]
+        parts.append(box(ctr, ext, 500))
+    return np.concatenate(parts)
+
+
+@pytest.mark.parametrize("n", [300, 1000])
+@pytest.mark.parametrize("outlier_ratio", [0.0, 0.5, 0.8, 0.9, 0.95])
+def test_recovers_pose_under_outliers(n, outlier_ratio):
+    rng = np.random.default_rng(int(1000 * outlier_ratio) + n)
+    T = random_room_pose(rng)
+    src, ref, k = correspondences(rng, n, outlier_ratio, T)
+    res = estimate_pose(src, ref)
+    dt, dr = pose_error(res.T, T)
+    assert res.success and res.reason == "ok", res
+    assert dt < 0.05 and dr < 1.0
+    assert res.used_pyramid == (outlier_ratio > 0.7)
+    truth = np.arange(n) >= k
+    assert res.inlier_mask[truth].mean() > 0.95
+    assert res.inlier_mask[~truth].sum() <= 3
+    assert res.timing_ms["total"] > 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("n", [200, 1000])
+def test_random_correspondences_are_rejected(seed, n):
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(0, ROOM, (n, 3))
+    ref = rng.uniform(0, ROOM, (n, 3)) + rng.uniform(-5, 5, 3)
+    res = estimate_pose(src, ref)
+    assert not res.success
+    assert res.reason in ("too_few_inliers", "degenerate_geometry")
+
+
+def test_unrelated_rooms_with_clouds_are_rejected():
+    rng = np.random.default_rng(11)
+    room_a, room_b = box_room(rng), box_room(rng, size=np.array([6.0, 5.0, 2.6]))
+    ia = rng.integers(0, len(room_a), 600)
+    ib = rng.integers(0, len(room_b), 600)
+    res = estimate_pose(room_a[ia], room_b[ib], src_cloud=room_a, ref_cloud=room_b)
+    assert not res.success
+    assert res.reason in ("too_few_inliers", "degenerate_geometry", "verification_failed")
+
+
+def test_consistent_but_local_cluster_is_rejected():
+    """A wrongly matched object pair gives many mutually consistent correspondences, all in
+    one spot: enough inliers, but no room-scale support."""
+    rng = np.random.default_rng(12)
+    T = random_room_pose(rng)
+    src = rng.uniform(0, ROOM, (200, 3))
+    ref = rng.uniform(-5, 5, (200, 3))
+    blob = rng.uniform([3, 3, 0.5], [3.15, 3.15, 0.65], (40, 3))
+    src[:40], ref[:40] = blob, apply_T(T, blob)
+    res = estimate_pose(src, ref, cfg=PoseConfig(nms_radius=0.0))
+    assert res.inliers >= 40
+    assert not res.success and res.reason == "degenerate_geometry"
+
+
+def test_verification_on_clouds_accepts_true_and_rejects_wrong_pose():
+    rng = np.random.default_rng(13)
+    room = box_room(rng)
+    T = random_room_pose(rng)
+    ref_cloud = apply_T(T, room) + rng.normal(0, 0.005, room.shape)
+    src, ref, _ = correspondences(rng, 400, 0.9, T)
+    res = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud,
+                        cfg=PoseConfig(icp=True))
+    dt, dr = pose_error(res.T, T)
+    assert res.success and dt < 0.05 and dr < 1.0
+    assert res.fitness > 0.8
+    assert res.T_icp is not None and res.icp_fitness >= res.fitness - 0.05
+    dt, dr = pose_error(res.T_icp, T)
+    assert dt < 0.05 and dr < 1.0
+    # Same correspondences, but the reference cloud is a different room: verification fails.
+    other = box_room(np.random.default_rng(99), size=np.array([5.0, 4.0, 2.5]))
+    bad = estimate_pose(src, ref, src_cloud=room, ref_cloud=apply_T(T, other))
+    assert not bad.success and bad.reason == "verification_failed"
+
+
+def test_4dof_mode():
+    rng = np.random.default_rng(14)
+    T = random_room_pose(rng)
+    src, ref, _ = correspondences(rng, 500, 0.9, T, noise=0.02)
+    res = estimate_pose(src, ref, cfg=PoseConfig(dof=4))
+    assert res.success
+    np.testing.assert_allclose(res.T[2, :3], [0, 0, 1], atol=1e-12)
+    dt, dr = pose_error(res.T, T)
+    assert dt < 0.05 and dr < 1.0
+    # A tilted truth cannot be represented in 4-DoF, SE(3) mode still finds it.
+    Tt = random_room_pose(rng, tilt=np.radians(10))
+    src, ref, _ = correspondences(rng, 300, 0.5, Tt)
+    assert pose_error(estimate_pose(src, ref).T, Tt)[1] < 1.0
+    assert pose_error(estimate_pose(src, ref, cfg=PoseConfig(dof=4)).T, Tt)[1] > 5.0
+
+
+@pytest.mark.parametrize("src,ref,reason", [
+    (np.zeros((2, 3)), np.zeros((2, 3)), "too_few_correspondences"),
+    (np.zeros((0, 3)), np.zeros((0, 3)), "too_few_correspondences"),
+    (np.zeros((5, 3)), np.zeros((4, 3)), "invalid_input"),
+    (np.zeros((5, 2)), np.zeros((5, 2)), "invalid_input"),
+    ("not points", None, "invalid_input"),
+    (np.full((10, 3), np.nan), np.zeros((10, 3)), "too_few_correspondences"),
+])
+def test_invalid_inputs_return_verdict(src, ref, reason):
+    res = estimate_pose(src, ref)
+    assert not res.success and res.reason == reason
+    np.testing.assert_array_equal(res.T, np.eye(4))
+
+
+def test_collinear_correspondences_are_degenerate():
+    t = np.linspace(0, 5, 50)
+    src = np.c_[t, 0.5 * t, np.ones(50)]
+    res = estimate_pose(src, src + [1.0, 2.0, 0.0])
+    assert not res.success and res.reason == "degenerate_geometry"
+
+
+def test_nan_rows_are_dropped_not_fatal():
+    rng = np.random.default_rng(15)
+    T = random_room_pose(rng)
+    src, ref, _ = correspondences(rng, 300, 0.5, T)
+    src[::10, 1] = np.nan
+    ref[5::10, 0] = np.inf
+    res = estimate_pose(src, ref)
+    assert res.success and pose_error(res.T, T)[0] < 0.05
+    assert res.num_correspondences <= 240
+    assert not res.inlier_mask[::10].any()
+
+
+def test_weights_and_noise_bounds_are_validated_and_used():
+    rng = np.random.default_rng(16)
+    T = random_room_pose(rng)
+    src, ref, k = correspondences(rng, 300, 0.5, T)
+    assert estimate_pose(src, ref, weights=np.ones(5)).reason == "invalid_input"
+    assert estimate_pose(src, ref, noise_bounds=np.ones(5)).reason == "invalid_input"
+    # Zero weight on all inliers leaves only outliers to fit.
+    w = np.ones(300)
+    w[k:] = 0.0
+    assert not estimate_pose(src, ref, weights=w).success
+    res = estimate_pose(src, ref, noise_bounds=np.full(300, 0.05))
+    assert res.success and pose_error(res.T, T)[0] < 0.05
