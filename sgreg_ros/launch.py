@@ -39,7 +39,8 @@ def node_command(executable: str, agent: str, params_file: str | Path | None = N
 
 
 def start_agents(names: list[str], params_file=None, overrides: dict | None = None,
-                 log_dir: Path | None = None, executables=EXECUTABLES) -> list[NodeProcess]:
+                 log_dir: Path | None = None, executables=EXECUTABLES,
+                 log_suffix: str = "") -> list[NodeProcess]:
     """One process per (agent, executable), each in its own process group."""
     procs = []
     for name in names:
@@ -48,7 +49,7 @@ def start_agents(names: list[str], params_file=None, overrides: dict | None = No
             out = None
             if log_dir is not None:
                 log_dir.mkdir(parents=True, exist_ok=True)
-                log_path = log_dir / f"{name}_{exe}.log"
+                log_path = log_dir / f"{name}_{exe}{log_suffix}.log"
                 out = open(log_path, "w")
             proc = subprocess.Popen(node_command(exe, name, params_file, overrides),
                                     stdout=out, stderr=subprocess.STDOUT if out else None,
@@ -72,3 +73,13 @@ def stop(procs: list[NodeProcess], timeout: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             os.killpg(p.proc.pid, signal.SIGKILL)
             p.proc.wait()
+
+
+def kill(procs: list[NodeProcess]) -> None:
+    """SIGKILL, no clean shutdown: a crash."""
+    for p in procs:
+        try:
+            os.killpg(p.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        p.proc.wait()

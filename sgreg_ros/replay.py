@@ -29,7 +29,9 @@ CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
 class ReplayConfig:
     """rate: playback speed. tail_s: time to keep listening after the bag ends (a dense
     exchange may still be in flight). ready_timeout_s: how long nodes may take to start.
-    overrides: ROS parameters given to every node (e.g. weights_path)."""
+    overrides: ROS parameters given to every node (e.g. weights_path).
+    restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
+        and start them again at once: a robot whose software crashes mid-mission."""
 
     rate: float = 1.0
     tail_s: float = 6.0
@@ -37,6 +39,7 @@ class ReplayConfig:
     params_file: str | None = None
     overrides: dict = field(default_factory=dict)
     log_dir: Path | None = None
+    restart: tuple[str, float] | None = None
 
 
 @dataclass
@@ -49,6 +52,7 @@ class ReplayRun:
     corrupted: list
     duration_s: float
     timeline: list   # (t, topic, bytes) of cross-agent traffic
+    events: list     # (t, what) e.g. a restart
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -67,10 +71,14 @@ class _Sampler:
     """CPU time and peak memory of the node processes, sampled every 0.5 s."""
 
     def __init__(self, procs):
-        self.procs = {f"{p.agent}/{p.executable}": psutil.Process(p.proc.pid) for p in procs}
-        self.peak_rss = dict.fromkeys(self.procs, 0)
-        self.cpu = dict.fromkeys(self.procs, 0.0)
-        self.t0 = time.monotonic()
+        self.procs, self.peak_rss, self.cpu, self.started = {}, {}, {}, {}
+        self.track(procs)
+
+    def track(self, procs, suffix: str = ""):
+        for p in procs:
+            name = f"{p.agent}/{p.executable}{suffix}"
+            self.procs[name] = psutil.Process(p.proc.pid)
+            self.peak_rss[name], self.cpu[name], self.started[name] = 0, 0.0, time.monotonic()
 
     def sample(self):
         for name, proc in self.procs.items():
@@ -82,8 +90,10 @@ class _Sampler:
                 pass
 
     def report(self) -> dict:
-        wall = time.monotonic() - self.t0
-        return {name: {"cpu_s": round(self.cpu[name], 2), "cpu_share": round(self.cpu[name] / wall, 3),
+        """CPU share = CPU seconds over the process's wall time (1.0 = one core busy)."""
+        now = time.monotonic()
+        return {name: {"cpu_s": round(self.cpu[name], 2),
+                       "cpu_share": round(self.cpu[name] / max(now - self.started[name], 1e-3), 3),
                        "peak_rss_mb": round(self.peak_rss[name] / 2**20, 1)} for name in self.procs}
 
 
@@ -123,6 +133,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
 
     player = rclpy.create_node("sgreg_replay_player")
     play_result = {}
+    events: list = []
     try:
         # ready: both nodes of every agent subscribe to its mapping/instances
         deadline = time.monotonic() + cfg.ready_timeout_s
@@ -148,8 +159,21 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         thread.start()
         last_sample = 0.0
         end_at = None
+        restart = cfg.restart
         while end_at is None or time.monotonic() < end_at:
             executor.spin_once(timeout_sec=0.05)
+            if restart and time.monotonic() - t0 >= restart[1]:
+                victims = [p for p in procs if p.agent == restart[0]]
+                launch.kill(victims)
+                for p in victims:
+                    procs.remove(p)
+                fresh = launch.start_agents([restart[0]], cfg.params_file, cfg.overrides, cfg.log_dir,
+                                            log_suffix="_restarted")
+                procs += fresh
+                sampler.track(fresh, " (restarted)")
+                events.append((time.monotonic() - t0, f"killed and restarted the nodes of {restart[0]}"))
+                log(events[-1][1])
+                restart = None
             if time.monotonic() - last_sample > 0.5:
                 sampler.sample()
                 last_sample = time.monotonic()
@@ -167,7 +191,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
-                     timeline=timeline)
+                     timeline=timeline, events=events)
 
 
 def ground_truth_of(bag: str | Path) -> dict:

@@ -20,6 +20,8 @@ def add_arguments(p):
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML for the nodes (default: config/sgreg.yaml)")
     p.add_argument("--log-dir", help="node logs (default: next to the JSON)")
+    p.add_argument("--restart", metavar="AGENT@SECONDS",
+                   help="kill that agent's nodes that long into the replay and restart them")
 
 
 def _fmt_T(T) -> str:
@@ -42,7 +44,15 @@ def run(args) -> int:
     except BagError as exc:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
-    cfg = ReplayConfig(rate=args.rate, params_file=args.params_file,
+    restart = None
+    if args.restart:
+        agent, _, when = args.restart.partition("@")
+        try:
+            restart = (agent, float(when))
+        except ValueError:
+            print(f"sgreg replay: --restart wants AGENT@SECONDS, got {args.restart!r}", file=sys.stderr)
+            return 2
+    cfg = ReplayConfig(rate=args.rate, restart=restart, params_file=args.params_file,
                        overrides={"weights_path": args.weights} if args.weights else {},
                        log_dir=Path(args.log_dir) if args.log_dir else out_json.parent / (out_json.stem + "_logs"))
     try:
@@ -74,6 +84,7 @@ def run(args) -> int:
         "messages_played": run_.played,
         "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
         "duration_s": run_.duration_s,
+        "events": [{"t": t, "what": w} for t, w in run_.events],
         "config": {"rate": cfg.rate, "params_file": cfg.params_file, "overrides": cfg.overrides},
         "frames": score.to_dict()["frames"],
     }
