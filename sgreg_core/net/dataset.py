@@ -1,0 +1,284 @@
+"""Training and validation pairs of scene graphs with ground truth (paper section V).
+
+A pair is cut on the fly from one of three sources and cached to disk (npz), so every later
+epoch, run or resume reads it back in milliseconds:
+  * "scan":   two overlapping partial views of one real scan (pairs.make_pair);
+  * "rescan": a view of one capture of a room against a view of another capture of the same
+              room, with the pseudo ground truth of rescan_gt.json (furniture moved, other
+              coverage: the most realistic pairs we have);
+  * "synth":  two views of a synthetic apartment or office (sgreg_core.synth).
+Real scans of the validation room never enter training. Ground-truth node pairs come from the
+voxel-occupancy IoU of the node clouds in the common frame (pairs.node_iou).
+
+Each time a pair is used it is re-augmented: both graphs get their own random 4-DoF transform
+(yaw in [-180, 180)), so the network never sees a pair twice in the same frames.
+
+Public API:
+    DataConfig
+    GraphPair                      src, ref (SceneGraph), T_src_ref, gt (m, 2) node indices, gt_iou
+    PairSource(cfg, split, seed)   .pair(i) -> GraphPair (cached), len() = pool size
+    augment(pair, rng) -> GraphPair
+    graph_pair_from_registration(pair, graph_cfg) -> GraphPair
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import invert_transform, transform_points, yaw_transform
+from ..instance_map import labelled_mask, read_instance_map
+from ..pairs import NoiseConfig, PairConfig, RegistrationPair, make_pair, node_iou
+from ..scene_graph import GraphConfig, build_scene_graph
+from ..types import InstanceMap, SceneGraph
+
+NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
+
+
+@dataclass
+class DataConfig:
+    """scans_dir:     real scans (instance map directories, DESIGN.md section 3).
+    scan_prefix:      scans used (the 50k-point "picwoon" subsamples; others duplicate rooms).
+    rescan_gt:        pseudo ground truth between captures of one room ("" to skip rescans).
+    val_room:         scene id kept out of training (all its captures) for validation.
+    train_pairs / val_pairs: pool sizes; a training run cycles through its pool.
+    mix:              relative weight of the sources scan / rescan / synth in training.
+    synth_scenes:     distinct synthetic scenes (seeds 0..n-1), 1-2 rooms each.
+    overlap:          overlap of two views, uniform in this range.
+    halves_prob:      probability that views split every point (half density) rather than the band.
+    noise_prob:       probability that a pair gets front-end noise (NoiseConfig.preset, all kinds).
+    min_matches:      a pair needs this many gt node matches at IoU >= iou_store, else re-cut.
+    iou_store:        gt node pairs kept down to this IoU (the losses pick their own threshold).
+    cache_dir:        root of the pair cache; a hash of this config names the sub-directory."""
+
+    scans_dir: str = "/work/shared/data/scans"
+    scan_prefix: str = "scannet-picwoon_"
+    rescan_gt: str = "/work/shared/data/rescan_gt.json"
+    val_room: str = "scene0005"
+    train_pairs: int = 800
+    val_pairs: int = 40
+    mix: dict = field(default_factory=lambda: {"scan": 0.4, "rescan": 0.2, "synth": 0.4})
+    synth_scenes: int = 200
+    overlap: tuple[float, float] = (0.3, 0.8)
+    halves_prob: float = 0.3
+    noise_prob: float = 0.5
+    min_matches: int = 3
+    iou_store: float = 0.1
+    cache_dir: str = "runs/cache/pairs"
+    graph: GraphConfig = field(default_factory=GraphConfig)
+
+
+@dataclass
+class GraphPair:
+    src: SceneGraph
+    ref: SceneGraph
+    T_src_ref: np.ndarray  # (4, 4) src graph frame -> ref graph frame
+    gt: np.ndarray         # (m, 2) int64 (src node index, ref node index)
+    gt_iou: np.ndarray     # (m,) float32
+    source: str = ""
+
+    def matches(self, min_iou: float) -> np.ndarray:
+        return self.gt[self.gt_iou >= min_iou]
+
+
+# ---- construction ----------------------------------------------------------------------
+def _node_index(graph: SceneGraph, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Node index of each instance id, and whether the id is a node at all (small instances
+    are not)."""
+    if graph.num_nodes == 0:
+        return np.zeros(len(ids), np.int64), np.zeros(len(ids), bool)
+    order = np.argsort(graph.node_ids)
+    pos = np.searchsorted(graph.node_ids[order], ids).clip(0, graph.num_nodes - 1)
+    return order[pos], graph.node_ids[order][pos] == ids
+
+
+def graph_pair_from_registration(pair: RegistrationPair, graph_cfg: GraphConfig,
+                                 source: str = "") -> GraphPair:
+    """Scene graphs of both views; gt instance-id pairs become node-index pairs."""
+    src, ref = build_scene_graph(pair.src, graph_cfg), build_scene_graph(pair.ref, graph_cfg)
+    si, s_ok = _node_index(src, pair.gt_node_pairs[:, 0])
+    ri, r_ok = _node_index(ref, pair.gt_node_pairs[:, 1])
+    keep = s_ok & r_ok
+    return GraphPair(src=src, ref=ref, T_src_ref=np.asarray(pair.T_src_ref, np.float64),
+                     gt=np.stack([si[keep], ri[keep]], 1).astype(np.int64),
+                     gt_iou=pair.gt_iou[keep].astype(np.float32), source=source)
+
+
+def _rescan_pair(a: InstanceMap, b: InstanceMap, T_ab: np.ndarray, cfg: PairConfig,
+                 rng: np.random.Generator) -> RegistrationPair:
+    """A view of capture a (moved at random) against a view of capture b, gt from T_ab."""
+    view_a, view_b = make_pair(a, cfg, rng), make_pair(b, cfg, rng)
+    src, ref = view_a.src, view_b.ref
+    T = T_ab @ view_a.T_src_ref  # src view -> frame of a -> frame of b (= the ref view's frame)
+    ms, mr = labelled_mask(src), labelled_mask(ref)
+    pairs, iou = node_iou(transform_points(T, src.points[ms]), src.instance[ms],
+                          ref.points[mr], ref.instance[mr], cfg.iou_voxel)
+    keep = iou >= cfg.iou_store
+    return RegistrationPair(src=src, ref=ref, T_src_ref=T, gt_node_pairs=pairs[keep],
+                            gt_iou=iou[keep], meta={"rescan": True})
+
+
+@lru_cache(maxsize=32)
+def _read_scan(path: str) -> InstanceMap:
+    return read_instance_map(path)
+
+
+@lru_cache(maxsize=8)
+def _synth_scene(seed: int) -> InstanceMap:
+    from ..synth import SynthConfig, generate_scene
+
+    rng = np.random.default_rng([seed, 7])
+    cfg = SynthConfig(kind=("apartment", "office")[int(rng.integers(2))], rooms=int(rng.integers(1, 3)))
+    return generate_scene(seed, cfg)
+
+
+class PairSource:
+    """The pool of pairs of one split ("train" or "val"), generated lazily and cached."""
+
+    def __init__(self, cfg: DataConfig, split: str, seed: int = 0):
+        if split not in ("train", "val"):
+            raise ValueError(f"split must be 'train' or 'val', got {split!r}")
+        self.cfg, self.split, self.seed = cfg, split, seed
+        scans = sorted(p.name for p in Path(cfg.scans_dir).glob(cfg.scan_prefix + "*") if p.is_dir())
+        in_val = [cfg.val_room in name for name in scans]
+        self.scans = [s for s, v in zip(scans, in_val) if v == (split == "val")]
+        self.rescans = self._rescan_list(set(self.scans))
+        sources = {"scan": bool(self.scans), "rescan": bool(self.rescans),
+                   "synth": split == "train" and cfg.synth_scenes > 0}
+        if split == "val":  # validation: real pairs of the held-out room only
+            weights = {"scan": 0.7, "rescan": 0.3}
+        else:
+            weights = dict(cfg.mix)
+        self.weights = {k: float(w) for k, w in weights.items() if sources.get(k) and w > 0}
+        if not self.weights:
+            raise FileNotFoundError(f"no data for split {split!r}: scans {cfg.scans_dir}/"
+                                    f"{cfg.scan_prefix}* (val room {cfg.val_room}), synthetic scenes "
+                                    f"{cfg.synth_scenes}")
+        self.size = cfg.train_pairs if split == "train" else cfg.val_pairs
+        self.cache = Path(cfg.cache_dir) / f"{split}-{self._key()}"
+
+    def __len__(self) -> int:
+        return self.size
+
+    def _rescan_list(self, scans: set[str]) -> list[tuple[str, str, np.ndarray]]:
+        if not self.cfg.rescan_gt or not Path(self.cfg.rescan_gt).exists():
+            return []
+        entries = json.loads(Path(self.cfg.rescan_gt).read_text())["pairs"]
+        out = []
+        for e in entries:
+            if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
+                T = np.asarray(e["T_src_to_ref"], np.float64)
+                out += [(e["src"], e["ref"], T), (e["ref"], e["src"], invert_transform(T))]
+        return out
+
+    def _key(self) -> str:
+        """Cache name: everything that changes the pairs (not the pool size: pair i is pair i)."""
+        cfg = dataclasses.asdict(self.cfg)
+        for k in ("train_pairs", "val_pairs", "cache_dir"):
+            cfg.pop(k)
+        blob = json.dumps([cfg, self.seed, self.scans, self.weights], sort_keys=True, default=str)
+        return hashlib.sha256(blob.encode()).hexdigest()[:10]
+
+    def pair(self, index: int) -> GraphPair:
+        path = self.cache / f"{index:05d}.npz"
+        if path.exists():
+            return load_graph_pair(path)
+        pair = self._make(index)
+        save_graph_pair(pair, path)
+        return pair
+
+    def _make(self, index: int) -> GraphPair:
+        cfg = self.cfg
+        rng = np.random.default_rng([self.seed, index, 0 if self.split == "train" else 1])
+        kinds = list(self.weights)
+        p = np.array([self.weights[k] for k in kinds])
+        for _ in range(20):  # re-cut until the views share enough nodes
+            kind = kinds[int(rng.choice(len(kinds), p=p / p.sum()))]
+            pair_cfg = PairConfig(
+                overlap=float(rng.uniform(*cfg.overlap)),
+                disjoint="halves" if rng.random() < cfg.halves_prob else "band",
+                iou_store=cfg.iou_store,
+                noise=NoiseConfig.preset(NOISE_ALL) if rng.random() < cfg.noise_prob else NoiseConfig())
+            if kind == "rescan":
+                a, b, T_ab = self.rescans[int(rng.integers(len(self.rescans)))]
+                reg = _rescan_pair(self._scan(a), self._scan(b), T_ab, pair_cfg, rng)
+                name = f"rescan:{a}->{b}"
+            elif kind == "scan":
+                scan = self.scans[int(rng.integers(len(self.scans)))]
+                reg, name = make_pair(self._scan(scan), pair_cfg, rng), f"scan:{scan}"
+            else:
+                seed = int(rng.integers(cfg.synth_scenes))
+                reg, name = make_pair(_synth_scene(seed), pair_cfg, rng), f"synth:{seed}"
+            pair = graph_pair_from_registration(reg, cfg.graph, name)
+            if len(pair.gt) >= cfg.min_matches and min(pair.src.num_nodes, pair.ref.num_nodes) >= 3:
+                return pair
+        raise RuntimeError(f"could not cut a {self.split} pair {index} with {cfg.min_matches} matches")
+
+    def _scan(self, name: str) -> InstanceMap:
+        return _read_scan(str(Path(self.cfg.scans_dir) / name))
+
+
+# ---- augmentation ----------------------------------------------------------------------
+def _move(graph: SceneGraph, T: np.ndarray) -> SceneGraph:
+    counts = np.fromiter(map(len, graph.points), dtype=np.int64, count=graph.num_nodes)
+    flat = np.concatenate(graph.points) if graph.num_nodes else np.zeros((0, 3), np.float32)
+    return dataclasses.replace(graph, centers=transform_points(T, graph.centers),
+                               points=np.split(transform_points(T, flat), np.cumsum(counts)[:-1]))
+
+
+def random_4dof(rng: np.random.Generator, max_translation: float = 10.0) -> np.ndarray:
+    return yaw_transform(rng.uniform(-np.pi, np.pi),
+                         np.r_[rng.uniform(-max_translation, max_translation, 2), rng.uniform(-1, 1)])
+
+
+def augment(pair: GraphPair, rng: np.random.Generator) -> GraphPair:
+    """Move each graph by its own random 4-DoF transform; T_src_ref follows."""
+    A_src, A_ref = random_4dof(rng), random_4dof(rng)
+    return dataclasses.replace(pair, src=_move(pair.src, A_src), ref=_move(pair.ref, A_ref),
+                               T_src_ref=A_ref @ pair.T_src_ref @ invert_transform(A_src))
+
+
+# ---- storage ---------------------------------------------------------------------------
+def _graph_arrays(graph: SceneGraph, prefix: str) -> dict[str, np.ndarray]:
+    counts = np.fromiter(map(len, graph.points), dtype=np.int64, count=graph.num_nodes)
+    return {
+        f"{prefix}node_ids": graph.node_ids, f"{prefix}labels": np.array(graph.labels, dtype=str),
+        f"{prefix}scores": graph.scores, f"{prefix}centers": graph.centers,
+        f"{prefix}extents": graph.extents, f"{prefix}edges": graph.edges,
+        f"{prefix}structural": graph.structural, f"{prefix}counts": counts,
+        f"{prefix}points": (np.concatenate(graph.points) if graph.num_nodes
+                            else np.zeros((0, 3), np.float32)),
+    }
+
+
+def _graph_from(data, prefix: str) -> SceneGraph:
+    counts = data[f"{prefix}counts"]
+    return SceneGraph(
+        node_ids=data[f"{prefix}node_ids"], labels=data[f"{prefix}labels"].tolist(),
+        scores=data[f"{prefix}scores"], centers=data[f"{prefix}centers"],
+        extents=data[f"{prefix}extents"], edges=data[f"{prefix}edges"].reshape(-1, 2),
+        structural=data[f"{prefix}structural"],
+        points=np.split(data[f"{prefix}points"].reshape(-1, 3), np.cumsum(counts)[:-1]),
+    )
+
+
+def save_graph_pair(pair: GraphPair, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, T_src_ref=pair.T_src_ref, gt=pair.gt, gt_iou=pair.gt_iou,
+             source=np.array(pair.source), **_graph_arrays(pair.src, "src_"),
+             **_graph_arrays(pair.ref, "ref_"))
+    os.replace(tmp, path)  # atomic: an interrupted run never leaves half a pair
+
+
+def load_graph_pair(path: Path) -> GraphPair:
+    with np.load(path, allow_pickle=False) as data:
+        return GraphPair(src=_graph_from(data, "src_"), ref=_graph_from(data, "ref_"),
+                         T_src_ref=data["T_src_ref"], gt=data["gt"].reshape(-1, 2),
+                         gt_iou=data["gt_iou"], source=str(data["source"]))

@@ -1,0 +1,136 @@
+"""Hierarchical matching (paper section IV-E): nodes by dual softmax, then points by Sinkhorn.
+
+Nodes: S = <W x_i, W x_j> / sqrt(d), A = softmax_rows(S) * softmax_cols(S); a pair is a match
+when A > threshold and it is a mutual top-k. The projection W is applied by the sender (the
+descriptor is what a coarse message carries), so matching itself needs no weights.
+
+Points: for every matched node pair at once, S_p = s * cos(Z_i, Z_j) with a learnable scale s
+(unit-norm point features learn much faster than raw dot products here), padded with a
+learnable dustbin row/column and solved as optimal transport by log-domain Sinkhorn; mutual
+top-k entries above a threshold are the point correspondences.
+
+Public API:
+    MatchConfig
+    mutual_topk(scores, k) -> bool mask           (..., a, b): top-k in its row and its column
+    log_dual_softmax(desc_a, desc_b) -> (a, b)    log A
+    log_optimal_transport(scores, valid_a, valid_b, dustbin, iters) -> (B, a+1, b+1) log P
+    NodeMatcher(d_in, cfg): descriptor(x), match(desc_a, desc_b) -> (ia, ib, confidence)
+    PointMatcher(cfg): log_transport(z_a, valid_a, z_b, valid_b), match(...) -> (pair, ia, ib, p)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+# finite stand-in for log(0): -inf would turn Sinkhorn's padded rows into NaN
+LOG_ZERO = -1e9
+
+
+@dataclass
+class MatchConfig:
+    """d_match:         node descriptor size (what a coarse message carries per node).
+    node_threshold:  minimum dual-softmax confidence A_ij of a node match.
+    node_topk:       a node match must be in the top-k of its row and of its column.
+    sinkhorn_iters:  Sinkhorn iterations (log domain).
+    point_threshold: minimum transport mass (rows sum to 1) of a point correspondence.
+    point_topk:      mutual top-k for point correspondences."""
+
+    d_match: int = 64
+    node_threshold: float = 0.05
+    node_topk: int = 2
+    sinkhorn_iters: int = 20
+    point_threshold: float = 0.1
+    point_topk: int = 1
+
+
+def mutual_topk(scores: torch.Tensor, k: int) -> torch.Tensor:
+    """True where an entry is among the k largest of its row and of its column."""
+    kr, kc = min(k, scores.shape[-1]), min(k, scores.shape[-2])
+    row = torch.zeros_like(scores, dtype=torch.bool).scatter(-1, scores.topk(kr, -1).indices, True)
+    col = torch.zeros_like(scores, dtype=torch.bool).scatter(-2, scores.topk(kc, -2).indices, True)
+    return row & col
+
+
+def log_dual_softmax(desc_a: torch.Tensor, desc_b: torch.Tensor) -> torch.Tensor:
+    """log A = log_softmax_rows(S) + log_softmax_cols(S), S = <a_i, b_j> / sqrt(d)."""
+    s = desc_a @ desc_b.T / math.sqrt(desc_a.shape[-1])
+    return s.log_softmax(dim=1) + s.log_softmax(dim=0)
+
+
+def log_optimal_transport(scores: torch.Tensor, valid_a: torch.Tensor, valid_b: torch.Tensor,
+                          dustbin: torch.Tensor, iters: int) -> torch.Tensor:
+    """Entropic OT with a dustbin, batched: scores (B, a, b) -> log P (B, a+1, b+1).
+
+    Each valid point carries mass 1, each dustbin the other side's point count (so that every
+    point may go unmatched); padded points carry none. Rows of valid points sum to 1 in P.
+    """
+    batch, na, nb = scores.shape
+    bins_a = dustbin.expand(batch, na, 1)
+    bins_b = dustbin.expand(batch, 1, nb)
+    corner = dustbin.expand(batch, 1, 1)
+    couplings = torch.cat([torch.cat([scores, bins_a], -1), torch.cat([bins_b, corner], -1)], 1)
+    true_ = valid_a.new_ones(batch, 1)
+    rows = torch.cat([valid_a, true_], 1)
+    cols = torch.cat([valid_b, true_], 1)
+    couplings = couplings.masked_fill(~(rows.unsqueeze(2) & cols.unsqueeze(1)), LOG_ZERO)
+
+    count_a = valid_a.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
+    count_b = valid_b.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
+    norm = -(count_a + count_b).log()
+    log_mu = torch.cat([norm.expand(-1, na).masked_fill(~valid_a, LOG_ZERO), count_b.log() + norm], 1)
+    log_nu = torch.cat([norm.expand(-1, nb).masked_fill(~valid_b, LOG_ZERO), count_a.log() + norm], 1)
+
+    u, v = torch.zeros_like(log_mu), torch.zeros_like(log_nu)
+    for _ in range(iters):
+        u = log_mu - torch.logsumexp(couplings + v.unsqueeze(1), dim=2)
+        v = log_nu - torch.logsumexp(couplings + u.unsqueeze(2), dim=1)
+    return couplings + u.unsqueeze(2) + v.unsqueeze(1) - norm.unsqueeze(2)
+
+
+class NodeMatcher(nn.Module):
+    def __init__(self, d_in: int, cfg: MatchConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.proj = nn.Linear(d_in, cfg.d_match)
+
+    def descriptor(self, x: torch.Tensor) -> torch.Tensor:
+        return self.proj(x)
+
+    def match(self, desc_a: torch.Tensor, desc_b: torch.Tensor):
+        """-> index in a, index in b, confidence A_ij of every node match."""
+        if desc_a.shape[0] == 0 or desc_b.shape[0] == 0:
+            empty = torch.zeros(0, dtype=torch.long)
+            return empty, empty, torch.zeros(0)
+        log_a = log_dual_softmax(desc_a, desc_b)
+        keep = mutual_topk(log_a, self.cfg.node_topk) & (log_a > math.log(self.cfg.node_threshold))
+        ia, ib = keep.nonzero(as_tuple=True)
+        return ia, ib, log_a[ia, ib].exp()
+
+
+class PointMatcher(nn.Module):
+    def __init__(self, cfg: MatchConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.dustbin = nn.Parameter(torch.tensor(1.0))
+        self.log_scale = nn.Parameter(torch.tensor(math.log(10.0)))
+
+    def log_transport(self, z_a, valid_a, z_b, valid_b) -> torch.Tensor:
+        """Per matched node pair: z (B, K, d_z), valid (B, K) -> log P (B, K+1, K+1)."""
+        cos = torch.einsum("bkd,bld->bkl", F.normalize(z_a, dim=-1), F.normalize(z_b, dim=-1))
+        scores = cos * self.log_scale.exp()
+        return log_optimal_transport(scores, valid_a, valid_b, self.dustbin, self.cfg.sinkhorn_iters)
+
+    def match(self, z_a, valid_a, z_b, valid_b):
+        """-> pair index, point index in a, point index in b, transport mass of each match."""
+        if z_a.shape[0] == 0:
+            empty = torch.zeros(0, dtype=torch.long)
+            return empty, empty, empty, torch.zeros(0)
+        log_p = self.log_transport(z_a, valid_a, z_b, valid_b)[:, :-1, :-1]
+        keep = mutual_topk(log_p, self.cfg.point_topk) & (log_p > math.log(self.cfg.point_threshold))
+        keep &= valid_a.unsqueeze(2) & valid_b.unsqueeze(1)
+        pair, ia, ib = keep.nonzero(as_tuple=True)
+        return pair, ia, ib, log_p[pair, ia, ib].exp()

@@ -1,0 +1,102 @@
+"""An agent's own side: instance map -> scene graph -> node features, and the coarse and dense
+messages made from them. Encoding happens once per map update, not per message."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..instance_map import validate_instance_map
+from ..net.model import NodeFeatures, SGRegModel
+from ..scene_graph import GraphConfig, build_scene_graph
+from ..types import InstanceMap, SceneGraph
+from .messages import GraphMessage
+
+
+@dataclass
+class AgentConfig:
+    """name: agent id, also the namespace of its topics.
+    min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
+    max_points_in_map: a bigger instance map is refused (protects the node's memory and time)."""
+
+    name: str = "a"
+    min_nodes: int = 3
+    max_points_in_map: int = 2_000_000
+    graph: GraphConfig = field(default_factory=GraphConfig)
+
+
+class AgentInputError(ValueError):
+    """An instance map the agent refuses; the message says why in one line."""
+
+
+class AgentCore:
+    def __init__(self, cfg: AgentConfig, model: SGRegModel):
+        self.cfg = cfg
+        self.model = model
+        self.weights_id = model.weights_id
+        self.graph: SceneGraph | None = None
+        self.features: NodeFeatures | None = None
+        self.map_sequence = 0
+        self.stamp = 0.0
+        self.timing_ms: dict = {}
+
+    @property
+    def ready(self) -> bool:
+        return self.features is not None
+
+    def update_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> SceneGraph:
+        """Rebuild graph and features from a new instance map; raises AgentInputError."""
+        if imap.points.shape[0] > self.cfg.max_points_in_map:
+            raise AgentInputError(f"instance map has {imap.points.shape[0]} points "
+                                  f"(max_points_in_map={self.cfg.max_points_in_map})")
+        try:
+            validate_instance_map(imap, where=f"instance map {map_sequence}")
+        except ValueError as exc:
+            raise AgentInputError(str(exc)) from None
+        timings: dict = {}
+        t0 = time.perf_counter()
+        graph = build_scene_graph(imap, self.cfg.graph)
+        timings["graph"] = 1e3 * (time.perf_counter() - t0)
+        if graph.num_nodes < self.cfg.min_nodes:
+            raise AgentInputError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
+                                  f"(min_nodes={self.cfg.min_nodes})")
+        self.set_graph(graph, map_sequence, stamp, timings)
+        return graph
+
+    def set_graph(self, graph: SceneGraph, map_sequence: int, stamp: float,
+                  timings: dict | None = None) -> None:
+        """Encode a graph and make it the agent's current one."""
+        timings = {} if timings is None else timings
+        self.features = self.model.encode(graph, dense=True, timings=timings)
+        self.graph = graph
+        self.map_sequence, self.stamp, self.timing_ms = map_sequence, stamp, timings
+
+    def coarse_message(self, sequence: int) -> GraphMessage:
+        f, g = self.features, self.graph
+        return GraphMessage(agent_id=self.cfg.name, sequence=sequence,
+                            map_sequence=self.map_sequence, weights_id=self.weights_id,
+                            stamp=self.stamp, node_ids=f.node_ids, centers=f.centers,
+                            extents=np.asarray(g.extents, np.float32), x=f.x)
+
+    def dense_message(self, sequence: int, node_ids: np.ndarray | None = None,
+                      requester: str = "", request_sequence: int = 0) -> GraphMessage:
+        """Coarse content plus the sampled points of the requested nodes (all when empty)."""
+        msg = self.coarse_message(sequence)
+        keep = np.ones(msg.num_nodes, bool)
+        if node_ids is not None and len(node_ids):
+            keep = np.isin(msg.node_ids, np.asarray(node_ids, np.int64))
+        idx = np.flatnonzero(keep)
+        f = self.features
+        valid = f.valid[idx]
+        node_of_point = np.broadcast_to(np.arange(idx.size)[:, None], valid.shape)[valid]
+        msg.node_ids, msg.centers, msg.extents, msg.x = (
+            msg.node_ids[idx], msg.centers[idx], msg.extents[idx], msg.x[idx])
+        msg.points = f.points[idx][valid].astype(np.float32)
+        msg.point_node = node_of_point.astype(np.int64)
+        msg.requester, msg.request_sequence = requester, request_sequence
+        return msg
+
+    def own_cloud(self) -> np.ndarray:
+        """Every (voxelised) node point of the own graph: the verification cloud."""
+        return np.concatenate(self.graph.points).astype(np.float32)

@@ -1,0 +1,189 @@
+"""SGRegModel: encode/match API, invariance, determinism, weights I/O, a tiny overfit."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from sgreg_core.geometry import yaw_transform
+from sgreg_core.net import ModelConfig, SGRegModel, load_model, save_model, weights_id
+from sgreg_core.net.losses import LossConfig, pair_losses
+from sgreg_core.net.testing import hashed_text_encoder, moved_graph, toy_graph
+from sgreg_core.types import SceneGraph
+
+
+@pytest.fixture(scope="module")
+def text():
+    return hashed_text_encoder()
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    """These graphs are tiny: one thread is faster, and the CI machine has few cores."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _model(text, **overrides):
+    torch.manual_seed(0)
+    return SGRegModel(ModelConfig.from_dict(overrides), text_encoder=text).eval()
+
+
+def test_encode_shapes_and_dtypes(text):
+    model = _model(text)
+    graph = toy_graph(np.random.default_rng(0), n=15)
+    cfg = model.cfg
+    coarse = model.encode(graph, dense=False)
+    assert coarse.x.shape == (15, cfg.match.d_match) and coarse.x.dtype == np.float32
+    assert coarse.centers.shape == (15, 3) and not coarse.is_dense
+    dense = model.encode(graph)
+    k = cfg.shape.points_per_node
+    assert dense.points.shape == (15, k, 3) and dense.z.shape == (15, k, cfg.shape.d_z)
+    assert dense.valid.sum(1).tolist() == [min(len(p), k) for p in graph.points]
+    assert np.array_equal(coarse.x, dense.x)
+    assert np.array_equal(dense.node_ids, graph.node_ids)
+
+
+def test_encode_is_deterministic_and_4dof_invariant(text):
+    model = _model(text)
+    rng = np.random.default_rng(1)
+    graph = toy_graph(rng, n=20)
+    a, b = model.encode(graph), model.encode(graph)
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.z, b.z)
+    T = yaw_transform(rng.uniform(-np.pi, np.pi), rng.uniform(-10, 10, 3))
+    c = model.encode(moved_graph(graph, T, rng, jitter=0.0))
+    np.testing.assert_allclose(a.x, c.x, atol=1e-4)
+    np.testing.assert_allclose(a.z, c.z, atol=1e-4)
+    assert np.array_equal(a.valid, c.valid)
+    np.testing.assert_allclose(a.points[a.valid] @ T[:3, :3].T + T[:3, 3], c.points[c.valid], atol=1e-4)
+
+
+def test_point_features_from_a_dense_message_equal_encode(text):
+    """A peer recomputes Z from points, centers and descriptors: same as the sender's."""
+    model = _model(text)
+    feats = model.encode(toy_graph(np.random.default_rng(7), n=12))
+    z = model.point_features(feats.points.astype(np.float16), feats.valid,
+                             feats.centers, feats.x.astype(np.float16))
+    np.testing.assert_allclose(z, feats.z, atol=5e-2)
+    np.testing.assert_allclose(model.point_features(feats.points, feats.valid, feats.centers, feats.x),
+                               feats.z, atol=1e-5)
+
+
+def test_encode_requires_eval_mode(text):
+    model = _model(text).train()
+    with pytest.raises(RuntimeError, match="eval"):
+        model.encode(toy_graph(np.random.default_rng(0), n=5))
+
+
+@pytest.mark.parametrize("overrides", [
+    {"fusion": "early"}, {"fusion": "none"}, {"gnn": {"use_triplets": False}},
+])
+def test_ablation_variants_run(text, overrides):
+    model = _model(text, **overrides)
+    graph = toy_graph(np.random.default_rng(2), n=12)
+    feats = model.encode(graph)
+    assert feats.x.shape == (12, model.cfg.match.d_match)
+    model.match_dense(feats, feats)
+
+
+def test_empty_and_tiny_graphs(text):
+    model = _model(text)
+    empty = SceneGraph(node_ids=np.zeros(0, np.int64), labels=[], scores=np.zeros(0, np.float32),
+                       centers=np.zeros((0, 3), np.float32), extents=np.zeros((0, 3), np.float32),
+                       points=[], edges=np.zeros((0, 2), np.int64), structural=np.zeros(0, bool))
+    e = model.encode(empty)
+    assert e.x.shape == (0, model.cfg.match.d_match)
+    g = model.encode(toy_graph(np.random.default_rng(3), n=1))
+    assert np.isfinite(g.x).all()
+    dm = model.match_dense(e, g)
+    assert len(dm.nodes) == 0 and len(dm.points) == 0
+
+
+def test_weights_id_stable_and_sensitive(text):
+    model = _model(text)
+    wid = weights_id(model.state_dict())
+    assert len(wid) == 12 and int(wid, 16) >= 0
+    assert weights_id(_model(text).state_dict()) == wid == model.weights_id
+    with torch.no_grad():
+        model.point_matcher.dustbin += 1e-3
+    assert model.weights_id != wid
+
+
+def test_save_load_round_trip(tmp_path, text):
+    model = _model(text, shape={"d_z": 8}, fusion="early")
+    path = tmp_path / "w" / "model.safetensors"
+    wid = save_model(model, path, meta={"note": "test"})
+    info = json.loads(path.with_suffix(".json").read_text())
+    assert info["weights_id"] == wid and info["note"] == "test"
+    loaded = load_model(path, text_encoder=text)
+    assert loaded.cfg == model.cfg and loaded.weights_id == wid and not loaded.training
+    graph = toy_graph(np.random.default_rng(4), n=10)
+    assert np.array_equal(model.encode(graph).z, loaded.encode(graph).z)
+    with pytest.raises(FileNotFoundError):
+        load_model(tmp_path / "missing.safetensors")
+
+
+def test_config_round_trip_and_rejects_unknown_keys():
+    cfg = ModelConfig.from_dict({"gnn": {"layers": 1, "dist_periods": [1.0, 5.0]}, "fusion": "none"})
+    assert cfg.gnn.dist_periods == (1.0, 5.0)
+    assert ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+    with pytest.raises(ValueError, match="unknown"):
+        ModelConfig.from_dict({"gnn": {"layer": 1}})
+    with pytest.raises(ValueError, match="fusion"):
+        ModelConfig(fusion="middle")
+
+
+def test_float16_features_match_like_float32(text):
+    model = _model(text)
+    feats = model.encode(toy_graph(np.random.default_rng(5), n=10))
+    half = type(feats)(node_ids=feats.node_ids, centers=feats.centers.astype(np.float16),
+                       x=feats.x.astype(np.float16), points=feats.points.astype(np.float16),
+                       valid=feats.valid, z=feats.z.astype(np.float16))
+    a, b = model.match_dense(feats, feats), model.match_dense(half, half)
+    assert np.array_equal(a.nodes.src_idx, b.nodes.src_idx)
+
+
+def _toy_pair(seed):
+    rng = np.random.default_rng(seed)
+    ref = toy_graph(rng, n=16)
+    T = yaw_transform(rng.uniform(-np.pi, np.pi), rng.uniform(-5, 5, 3))
+    src = moved_graph(ref, np.linalg.inv(T), rng)  # T maps src into ref
+    return src, ref, T
+
+
+def test_overfit_one_pair(text):
+    """The losses drop on one pair and the trained model then matches its nodes."""
+    torch.manual_seed(0)
+    model = SGRegModel(ModelConfig(), text_encoder=text).train()
+    src, ref, T = _toy_pair(6)
+    gt = torch.stack([torch.arange(16), torch.arange(16)], 1)
+    T_t = torch.as_tensor(T, dtype=torch.float32)
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    cfg = LossConfig(pos_radius=0.1, neg_radius=0.2)
+    history = []
+    for step in range(40):
+        rng = np.random.default_rng(step)  # a new point sample every step
+        losses = pair_losses(model, model.prepare(src, rng=rng), model.prepare(ref, rng=rng),
+                             T_t, gt, cfg)
+        opt.zero_grad()
+        losses["total"].backward()
+        opt.step()
+        history.append({k: v.item() for k, v in losses.items()})
+    first, last = history[0], np.mean([h["total"] for h in history[-5:]])
+    assert last < 0.5 * first["total"], (first, history[-1])
+    assert history[-1]["gnn"] < 0.5 * first["gnn"] and history[-1]["ot"] < first["ot"]
+    model.eval()
+    nodes = model.match_coarse(model.encode(src), model.encode(ref))
+    correct = (nodes.src_idx == nodes.ref_idx).sum()
+    assert correct >= 12 and correct >= 0.8 * len(nodes)
+
+
+def test_shipped_weights_load_with_their_recorded_id(text):
+    from sgreg_core.net.model import DEFAULT_WEIGHTS
+
+    info = json.loads(DEFAULT_WEIGHTS.with_suffix(".json").read_text())
+    model = load_model(text_encoder=text)
+    assert model.weights_id == info["weights_id"]
+    assert model.cfg == ModelConfig.from_dict(info["config"])

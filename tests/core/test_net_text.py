@@ -1,0 +1,69 @@
+"""Label text encoding: the bundled MiniLM (loaded once, offline) and the label cache."""
+import os
+
+import numpy as np
+import pytest
+
+from sgreg_core.net.text import TEXT_DIM, TextEncoder, normalize_label
+
+
+class CountingEmbed:
+    def __init__(self):
+        self.calls: list[list[str]] = []
+
+    def __call__(self, labels):
+        self.calls.append(list(labels))
+        rng = np.random.default_rng(len(self.calls))
+        return rng.normal(size=(len(labels), TEXT_DIM)).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def minilm():
+    encoder = TextEncoder()
+    encoder.encode(["chair"])  # loads the model once for the module
+    return encoder
+
+
+def test_minilm_embeddings_are_semantic_unit_vectors(minilm):
+    emb = minilm.encode(["sofa", "couch", "ceiling", "Sofa ", "sofa"])
+    assert emb.shape == (5, TEXT_DIM) and emb.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-5)
+    assert np.array_equal(emb[0], emb[3]) and np.array_equal(emb[0], emb[4])
+    assert emb[0] @ emb[1] > emb[0] @ emb[2] + 0.2
+    assert os.environ["HF_HUB_OFFLINE"] == "1" and os.environ["TRANSFORMERS_OFFLINE"] == "1"
+    assert minilm.encode([]).shape == (0, TEXT_DIM)
+
+
+def test_each_label_is_embedded_once():
+    embed = CountingEmbed()
+    encoder = TextEncoder(embed_fn=embed, name="counting")
+    a = encoder.encode(["chair", "table", "chair"])
+    b = encoder.encode(["table", "lamp", " CHAIR"])
+    assert embed.calls == [["chair", "table"], ["lamp"]]
+    assert np.array_equal(a[0], b[2]) and np.array_equal(a[1], b[0])
+
+
+def test_disk_cache_round_trip_and_name_check(tmp_path):
+    path = tmp_path / "cache" / "labels.npz"
+    first = TextEncoder(cache_path=path, embed_fn=CountingEmbed(), name="counting")
+    emb = first.encode(["door", "window"])
+    assert path.exists()
+
+    def fail(labels):
+        raise AssertionError(f"cache miss for {labels}")
+
+    again = TextEncoder(cache_path=path, embed_fn=fail, name="counting")
+    assert np.array_equal(again.encode(["window", "door"]), emb[::-1])
+    assert again.cached_labels == ["door", "window"]
+    other = TextEncoder(cache_path=path, embed_fn=CountingEmbed(), name="another-model")
+    assert other.cached_labels == []
+
+
+def test_wrong_embedding_size_is_an_error():
+    encoder = TextEncoder(embed_fn=lambda labels: np.zeros((len(labels), 3)), name="bad")
+    with pytest.raises(ValueError, match="shape"):
+        encoder.encode(["chair"])
+
+
+def test_normalize_label():
+    assert normalize_label("  Office   Chair\n") == "office chair"

@@ -1,0 +1,106 @@
+"""Training end to end on tiny generated scans: outputs, exact resume, the CLI config path."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from sgreg_core.instance_map import write_instance_map
+from sgreg_core.net import load_model
+from sgreg_core.net import train as train_module
+from sgreg_core.net.config import apply_overrides, from_dict
+from sgreg_core.net.dataset import PairSource, augment
+from sgreg_core.net.testing import hashed_text_encoder
+from sgreg_core.net.train import TrainConfig, train
+from sgreg_core.synth import SynthConfig, generate_scene
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    """Two small synthetic rooms written as scans; room 'scene0002' is the validation room."""
+    root = tmp_path_factory.mktemp("scans")
+    for k, name in enumerate(["toy_scene0001_00", "toy_scene0002_00"]):
+        write_instance_map(generate_scene(k, SynthConfig(density=150.0)), root / name)
+    return root
+
+
+def _cfg(tmp_path, scans, run="run", **optim):
+    data = {
+        "run_dir": str(tmp_path / run), "threads": 1, "log_every": 1, "val_every": 100,
+        "checkpoint_every": 2,
+        "data": {"scans_dir": str(scans), "scan_prefix": "toy_", "rescan_gt": "",
+                 "val_room": "scene0002", "train_pairs": 3, "val_pairs": 1,
+                 "mix": {"scan": 1.0}, "synth_scenes": 0, "cache_dir": str(tmp_path / "cache")},
+        "model": {"shape": {"points_per_node": 16, "d_hidden": 16}, "gnn": {"layers": 1}},
+        "optim": {"steps": 4, "batch_pairs": 1, "warmup_steps": 1, **optim},
+    }
+    return from_dict(TrainConfig, data)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    yield
+    torch.set_num_threads(before)
+
+
+def test_pair_source_splits_rooms_and_caches(tmp_path, scans):
+    cfg = _cfg(tmp_path, scans).data
+    train_src, val_src = PairSource(cfg, "train", 0), PairSource(cfg, "val", 0)
+    assert train_src.scans == ["toy_scene0001_00"] and val_src.scans == ["toy_scene0002_00"]
+    pair = train_src.pair(0)
+    assert pair.source == "scan:toy_scene0001_00" and len(pair.gt) >= cfg.min_matches
+    again = PairSource(cfg, "train", 0).pair(0)  # from the disk cache
+    assert np.array_equal(pair.gt, again.gt) and np.allclose(pair.T_src_ref, again.T_src_ref)
+    # gt node pairs really overlap once src is moved into the ref frame
+    moved = augment(pair, np.random.default_rng(0))
+    i, j = moved.matches(0.3)[0]
+    src_pts = moved.src.points[i] @ moved.T_src_ref[:3, :3].T + moved.T_src_ref[:3, 3]
+    dist = np.linalg.norm(src_pts[:, None] - moved.ref.points[j][None], axis=-1).min(1)
+    assert np.median(dist) < 0.1
+
+
+def test_train_writes_outputs_and_resumes_exactly(tmp_path, scans, monkeypatch):
+    text = hashed_text_encoder()
+    full = train(_cfg(tmp_path, scans, "full"), progress=False, text_encoder=text)
+    run_dir = full.parent
+    for name in ("config.yaml", "history.json", "loss_curve.png", "model.json", "checkpoint.pt"):
+        assert (run_dir / name).exists(), name
+    history = json.loads((run_dir / "history.json").read_text())
+    assert [r["step"] for r in history["train"]] == [1, 2, 3, 4] and len(history["val"]) == 1
+    assert load_model(full, text_encoder=text).weights_id == json.loads(
+        (run_dir / "model.json").read_text())["weights_id"]
+
+    # a run killed during step 3 resumes from its step-2 checkpoint to the same weights
+    calls = {"n": 0}
+    real = train_module.pair_step_losses
+
+    def dying(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    cfg = _cfg(tmp_path, scans, "split")
+    monkeypatch.setattr(train_module, "pair_step_losses", dying)
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, progress=False, text_encoder=text)
+    monkeypatch.setattr(train_module, "pair_step_losses", real)
+    with pytest.raises(FileExistsError):
+        train(cfg, progress=False, text_encoder=text)
+    resumed = train(cfg, resume=True, progress=False, text_encoder=text)
+    a, b = load_file(str(full)), load_file(str(resumed))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_default_config_file_parses_and_overrides():
+    import yaml
+
+    data = yaml.safe_load((Path(__file__).parents[2] / "config" / "train.yaml").read_text())
+    cfg = from_dict(TrainConfig, apply_overrides(data, ["optim.steps=7", "model.fusion=early"]))
+    assert cfg.optim.steps == 7 and cfg.model.fusion == "early"
+    assert cfg.data.val_room == "scene0005"
+    with pytest.raises(ValueError, match="unknown"):
+        from_dict(TrainConfig, apply_overrides(data, ["optim.stepz=7"]))

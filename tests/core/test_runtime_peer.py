@@ -1,0 +1,134 @@
+"""The per-peer registration state machine (no ROS): the coarse-to-fine protocol and every
+failure case of DESIGN.md section 5 as a counter and a reason, never an exception."""
+import numpy as np
+import pytest
+
+from sgreg_core.geometry import yaw_transform
+from sgreg_core.metrics import rre, rte
+from sgreg_core.net.model import load_model
+from sgreg_core.net.testing import moved_graph, toy_graph
+from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.peer import Registrar, RegistrationConfig
+
+T_GT = yaw_transform(np.radians(140.0), (3.0, -2.0, 0.1))   # maps a's frame into b's
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()   # the shipped weights and the bundled MiniLM: what the nodes run
+
+
+@pytest.fixture(scope="module")
+def graphs():
+    rng = np.random.default_rng(5)
+    g = toy_graph(rng, n=24)
+    return g, moved_graph(g, T_GT, rng, jitter=0.005)
+
+
+def make_agents(model, graphs, cfg=None):
+    ga, gb = graphs
+    a = AgentCore(AgentConfig(name="a"), model)
+    a.set_graph(ga, 1, 0.0)
+    b = AgentCore(AgentConfig(name="b"), model)
+    b.set_graph(gb, 1, 0.0)
+    logs = []
+    reg = Registrar(cfg or RegistrationConfig(), a, model, log=logs.append)
+    return a, b, reg, logs
+
+
+def test_coarse_then_dense_gives_a_verified_transform(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert est is not None and est.mode == "coarse" and not est.verified
+    assert req is not None and req.to_agent == "b" and req.from_agent == "a" and len(req.node_ids) >= 3
+    dense = b.dense_message(1, req.node_ids, "a", req.sequence)
+    est = reg.on_dense(dense, now=0.5)
+    assert est.mode == "dense"
+    assert est.verified, est.reason
+    assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
+    assert reg.peers["b"].pending is None
+    # the next coarse message merges the kept point correspondences and can be verified
+    est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.mode == "merged" and est.verified
+    assert rte(est.T, T_GT) < 0.2
+    assert req is None   # min_request_interval_s has not passed
+
+
+def test_duplicate_out_of_order_and_restart(model, graphs):
+    a, b, reg, logs = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(5), now=0.0)
+    assert reg.on_coarse(b.coarse_message(5), now=0.1) == (None, None)
+    assert reg.counters["duplicate_sequence"] == 1
+    assert reg.on_coarse(b.coarse_message(3), now=0.2) == (None, None)
+    assert reg.counters["out_of_order_sequence"] == 1
+    est, _ = reg.on_coarse(b.coarse_message(0), now=0.3)   # b restarted
+    assert reg.counters["peer_restart"] == 1 and est is not None
+    assert any("restarted" in line for line in logs)
+
+
+def test_other_weights_are_refused_and_said_once(model, graphs):
+    a, b, reg, logs = make_agents(model, graphs)
+    for seq in (1, 2, 3):
+        msg = b.coarse_message(seq)
+        msg.weights_id = "000000000000"
+        assert reg.on_coarse(msg, now=float(seq)) == (None, None)
+    assert reg.counters["rejected_weights"] == 3
+    assert sum("weights" in line for line in logs) == 1
+
+
+@pytest.mark.parametrize("corrupt,counter", [
+    (lambda m: setattr(m, "x", m.x[:, :-3]), "bad_feature_size"),
+    (lambda m: m.centers.__setitem__((0, 1), np.nan), "invalid_values"),
+    (lambda m: [setattr(m, k, getattr(m, k)[:2]) for k in ("node_ids", "centers", "extents", "x")], "too_few_nodes"),
+    (lambda m: [setattr(m, k, np.repeat(getattr(m, k), 200, axis=0)) for k in ("node_ids", "centers", "extents", "x")], "oversized_message"),
+])
+def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, counter):
+    a, b, reg, logs = make_agents(model, graphs)
+    msg = b.coarse_message(1)
+    msg.centers = msg.centers.copy()
+    corrupt(msg)
+    assert reg.on_coarse(msg, now=0.0) == (None, None)
+    assert reg.counters[counter] == 1
+    assert logs and "refused" in logs[0]
+
+
+def test_dense_points_naming_unknown_nodes_are_refused(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    dense = b.dense_message(1)
+    dense.point_node = dense.point_node + 1000
+    assert reg.on_dense(dense, now=0.0) is None
+    assert reg.counters["bad_points"] == 1
+
+
+def test_silent_peer_retries_with_backoff_then_gives_up(model, graphs):
+    cfg = RegistrationConfig(request_timeout_s=1.0, retry_backoff=2.0, max_retries=2, min_request_interval_s=5.0)
+    a, b, reg, logs = make_agents(model, graphs, cfg)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert req is not None
+    assert reg.on_tick(0.9) == []
+    retry1 = reg.on_tick(1.0)
+    assert len(retry1) == 1 and retry1[0].sequence != req.sequence
+    assert reg.on_tick(2.9) == []            # second wait is 2 s
+    retry2 = reg.on_tick(3.0)
+    assert len(retry2) == 1
+    assert reg.on_tick(6.9) == []            # third wait is 4 s
+    assert reg.on_tick(7.0) == []            # gives up instead of a third retry
+    assert reg.counters["request_gave_up"] == 1 and reg.counters["request_retry"] == 2
+    assert any("giving up" in line for line in logs)
+    # a new request only after the minimum interval since giving up
+    assert reg.on_coarse(b.coarse_message(2), now=8.0)[1] is None
+    assert reg.on_coarse(b.coarse_message(3), now=12.5)[1] is not None
+
+
+def test_no_estimate_before_own_map(model, graphs):
+    _, b, _, _ = make_agents(model, graphs)
+    a = AgentCore(AgentConfig(name="a"), model)
+    reg = Registrar(RegistrationConfig(), a, model, log=lambda s: None)
+    assert reg.on_coarse(b.coarse_message(1), now=0.0) == (None, None)
+    assert reg.counters["own_map_not_ready"] == 1
+
+
+def test_own_messages_are_ignored(model, graphs):
+    a, _, reg, _ = make_agents(model, graphs)
+    assert reg.on_coarse(a.coarse_message(1), now=0.0) == (None, None)
+    assert not reg.peers
