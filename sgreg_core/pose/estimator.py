@@ -54,7 +54,7 @@ class PoseConfig:
     nms_radius: float = 0.05
     gnc_inlier_gate: float = 0.3
     clique_deltas: tuple[float, ...] = (0.1, 0.2, 0.4)
-    max_exact_vertices: int = 300
+    max_exact_vertices: int = 60
     min_correspondences: int = 3
     min_inliers: int = 8
     min_inlier_spread: float = 0.2

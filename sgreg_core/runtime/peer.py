@@ -242,15 +242,19 @@ class Registrar:
     def _run_pose(self, link: PeerLink, mode: str, node_matches: int, src, ref, score,
                   peer_cloud, timings: dict, t0: float, dense_seq: int | None = None) -> Estimate:
         t_pose = time.perf_counter()
-        res = estimate_pose(np.asarray(src, np.float64), np.asarray(ref, np.float64),
-                            weights=np.asarray(score, np.float64),
-                            src_cloud=self.agent.own_cloud() if peer_cloud is not None else None,
-                            ref_cloud=peer_cloud, cfg=self.cfg.pose)
+        # Solved peer -> own and inverted: verification checks the sparse peer points (K per
+        # requested node) against the agent's full cloud, not the other way round, where most
+        # of the full cloud has no sampled partner and fitness would say nothing.
+        res = estimate_pose(np.asarray(ref, np.float64), np.asarray(src, np.float64),
+                            weights=np.asarray(score, np.float64), src_cloud=peer_cloud,
+                            ref_cloud=self.agent.own_cloud() if peer_cloud is not None else None,
+                            cfg=self.cfg.pose)
+        T = np.linalg.inv(np.asarray(res.T, np.float64))
         timings["pose"] = 1e3 * (time.perf_counter() - t_pose)
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         verified = bool(res.success) and peer_cloud is not None
         reason = res.reason if not res.success or peer_cloud is not None else "no_peer_cloud_to_verify"
-        est = Estimate(peer_id=link.peer_id, T=np.asarray(res.T, np.float64), verified=verified,
+        est = Estimate(peer_id=link.peer_id, T=T, verified=verified,
                        mode=mode, reason=reason, node_matches=node_matches,
                        correspondences=int(len(src)), inliers=int(res.inliers),
                        inlier_ratio=float(res.inlier_ratio), confidence=float(res.fitness),
