@@ -11,7 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 EXECUTABLES = ("agent", "registration")
-DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
+_REPO_PARAMS = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
+DEFAULT_PARAMS = _REPO_PARAMS if _REPO_PARAMS.exists() else None   # the repository's config/
 
 
 @dataclass
@@ -22,11 +23,11 @@ class NodeProcess:
     log_path: Path | None = None
 
 
-def node_command(executable: str, agent: str, params_file: str | Path | None = None,
+def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,
                  overrides: dict | None = None) -> list[str]:
-    """The command line of one node: `python -m sgreg_ros.<exe>_node --ros-args -r __ns:=/<agent> ...`."""
+    """The command line of one node: `python -m sgreg_ros.<exe>_node --ros-args -r __ns:=/<agent> ...`.
+    params_file None: no parameter file, only the nodes' defaults and `overrides`."""
     cmd = [sys.executable, "-m", f"sgreg_ros.{executable}_node", "--ros-args", "-r", f"__ns:=/{agent}"]
-    params_file = params_file or (DEFAULT_PARAMS if DEFAULT_PARAMS.exists() else None)
     if params_file:
         cmd += ["--params-file", str(params_file)]
     for key, value in (overrides or {}).items():
@@ -38,7 +39,7 @@ def node_command(executable: str, agent: str, params_file: str | Path | None = N
     return cmd
 
 
-def start_agents(names: list[str], params_file=None, overrides: dict | None = None,
+def start_agents(names: list[str], params_file=DEFAULT_PARAMS, overrides: dict | None = None,
                  log_dir: Path | None = None, executables=EXECUTABLES,
                  log_suffix: str = "") -> list[NodeProcess]:
     """One process per (agent, executable), each in its own process group."""

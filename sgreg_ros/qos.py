@@ -3,7 +3,9 @@
 - mapping/instances: reliable, depth 2, volatile. Each message is a full snapshot; only the
   newest matters, but a lost one costs a second of map growth, so reliable.
 - sgreg/coarse: reliable, depth 1, transient local. A late joiner (or a restarted peer) gets
-  the latest coarse graph at once instead of waiting a period; older ones are worthless.
+  the latest coarse graph at once instead of waiting a period; older ones are worthless to it.
+  Subscribers keep 4: a registration node busy with a dense estimate (a second or so) then
+  still sees every sequence number, so duplicates, gaps and restarts are all noticed.
 - sgreg/dense_request: reliable, depth 10, volatile. Small; each must arrive once.
 - sgreg/dense: reliable, depth 2, volatile. Large and only sent on request; never replayed to
   late joiners (that would resend megabytes nobody asked for).
@@ -20,6 +22,7 @@ def _qos(depth: int, transient: bool = False) -> QoSProfile:
 
 INSTANCES = _qos(2)
 COARSE = _qos(1, transient=True)
+COARSE_SUB = _qos(4, transient=True)
 DENSE_REQUEST = _qos(10)
 DENSE = _qos(2)
 RESULTS = _qos(10)

@@ -99,7 +99,7 @@ class _Sampler:
 
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     names = agents_in_bag(bag)
-    procs = launch.start_agents(names, cfg.params_file, cfg.overrides, cfg.log_dir)
+    procs = launch.start_agents(names, cfg.params_file or launch.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir)
     sampler = _Sampler(procs)
     rclpy.init()
     node = rclpy.create_node("sgreg_replay")
@@ -167,7 +167,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
                 launch.kill(victims)
                 for p in victims:
                     procs.remove(p)
-                fresh = launch.start_agents([restart[0]], cfg.params_file, cfg.overrides, cfg.log_dir,
+                fresh = launch.start_agents([restart[0]], cfg.params_file or launch.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir,
                                             log_suffix="_restarted")
                 procs += fresh
                 sampler.track(fresh, " (restarted)")

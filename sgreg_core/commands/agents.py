@@ -20,13 +20,13 @@ def add_arguments(p):
 def run(args) -> int:
     from pathlib import Path
 
-    from sgreg_ros.launch import start_agents, stop
+    from sgreg_ros.launch import DEFAULT_PARAMS, start_agents, stop
 
     if len(set(args.names)) != len(args.names) or not all(n.isidentifier() for n in args.names):
         print("sgreg agents: agent names must be distinct identifiers (a, b, robot_1, ...)", file=sys.stderr)
         return 2
     overrides = {"weights_path": args.weights} if args.weights else None
-    procs = start_agents(args.names, args.params_file, overrides,
+    procs = start_agents(args.names, args.params_file or DEFAULT_PARAMS, overrides,
                          Path(args.log_dir) if args.log_dir else None)
     print(f"started {len(procs)} nodes for agents {', '.join(args.names)}; Ctrl-C stops them", flush=True)
     stopping = False

@@ -1,0 +1,104 @@
+"""A test-side ROS node that feeds instance maps to real agent processes and watches what they
+publish: transforms, registration results and diagnostics."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TransformStamped
+from sgreg_msgs.msg import CoarseGraph, DenseRequest, InstanceMap, RegistrationResult
+
+from sgreg_core.geometry import transform_points, yaw_transform
+from sgreg_core.instance_map import select_points
+from sgreg_core.synth.scene import SynthConfig, generate_scene
+from sgreg_core.types import InstanceMap as CoreMap
+from sgreg_ros import launch, qos
+from sgreg_ros.convert import instance_map_to_msg, transform_from_msg
+
+
+def agent_maps(names, seed=0, rooms=1):
+    """One synthetic scene seen by each agent: overlapping crops along x, disjoint point samples,
+    each in its own random frame. Returns ({name: InstanceMap}, {name: T_scene_map})."""
+    rng = np.random.default_rng(seed)
+    scene = generate_scene(seed, SynthConfig(rooms=rooms))
+    x = scene.points[:, 0]
+    lo, hi = x.min(), x.max()
+    owner = rng.integers(0, len(names), x.size)            # each point sampled by one agent only
+    maps, frames = {}, {}
+    k = len(names)
+    for i, name in enumerate(names):
+        start = lo + (hi - lo) * 0.3 * i / max(k - 1, 1)
+        keep = (x >= start) & (x <= start + 0.7 * (hi - lo)) & (owner == i)
+        part = select_points(scene, keep)
+        T = yaw_transform(rng.uniform(-np.pi, np.pi), (*rng.uniform(-8, 8, 2), 0.0))
+        frames[name] = T
+        maps[name] = CoreMap(points=transform_points(np.linalg.inv(T), part.points).astype(np.float32),
+                             instance=part.instance, labels=part.labels, scores=part.scores)
+    return maps, frames
+
+
+class Watcher:
+    def __init__(self, names):
+        self.node = rclpy.create_node("sgreg_test_watcher")
+        self.names = names
+        self.transforms: dict[tuple, list] = {}
+        self.results: list[RegistrationResult] = []
+        self.diagnostics: dict[str, dict] = {}
+        self.map_pubs = {}
+        for n in names:
+            self.watch(n)
+
+    def watch(self, n):
+        if n in self.map_pubs:
+            return
+        self.map_pubs[n] = self.node.create_publisher(InstanceMap, f"/{n}/mapping/instances", qos.INSTANCES)
+        self.node.create_subscription(TransformStamped, f"/{n}/sgreg/transform", self._on_tf, qos.RESULTS)
+        self.node.create_subscription(RegistrationResult, f"/{n}/sgreg/registration", self.results.append, qos.RESULTS)
+        self.node.create_subscription(DiagnosticArray, f"/{n}/sgreg/diagnostics", self._on_diag, qos.RESULTS)
+
+    def _on_tf(self, msg):
+        key = (msg.child_frame_id.split("/")[0], msg.header.frame_id.split("/")[0])
+        self.transforms.setdefault(key, []).append(transform_from_msg(msg))
+
+    def _on_diag(self, msg):
+        for s in msg.status:
+            self.diagnostics[s.name] = {kv.key: kv.value for kv in s.values}
+
+    def counter(self, status_name, key) -> int:
+        return int(self.diagnostics.get(status_name, {}).get(key, 0))
+
+    def publisher(self, cls, topic, profile):
+        return self.node.create_publisher(cls, topic, profile)
+
+    def spin_until(self, done, timeout, publish_maps=None, period=1.0):
+        """Spin; every `period` s publish the maps in publish_maps ({name: InstanceMap})."""
+        deadline = time.monotonic() + timeout
+        seq = {}
+        next_pub = 0.0
+        while time.monotonic() < deadline:
+            if publish_maps and time.monotonic() >= next_pub:
+                for name, m in publish_maps.items():
+                    seq[name] = seq.get(name, 0) + 1
+                    self.map_pubs[name].publish(instance_map_to_msg(m, name, seq[name], time.time()))
+                next_pub = time.monotonic() + period
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+            if done():
+                return True
+        return done()
+
+    def wait_ready(self, names, timeout=120, per_agent=2):
+        """Until every agent's nodes subscribe to its mapping/instances."""
+        return self.spin_until(lambda: all(self.node.count_subscribers(f"/{n}/mapping/instances") >= per_agent
+                                           for n in names), timeout)
+
+    def close(self):
+        self.node.destroy_node()
+
+
+def alive(procs):
+    return [f"{p.agent}/{p.executable}" for p in procs if p.proc.poll() is not None]
+
+
+__all__ = ["agent_maps", "Watcher", "launch", "alive", "CoarseGraph", "DenseRequest"]
