@@ -44,6 +44,7 @@ class AgentNode(Node):
                           max_points_in_map=p["max_points_in_map"],
                           graph=GraphConfig(voxel_size=p["voxel_size"]))
         self.core = AgentCore(cfg, load_model(p["weights_path"] or None))
+        self.core.warm_up()
         self.counters: dict[str, int] = {}
         self.coarse_seq = 0
         self.dense_seq = 0
@@ -75,6 +76,8 @@ class AgentNode(Node):
             graph = self.core.update_map(imap, int(msg.sequence), convert.stamp_to_sec(msg.header.stamp))
         except (convert.ConversionError, AgentInputError) as exc:
             return self.count("bad_instance_map", f"instance map {msg.sequence} refused: {exc}")
+        except Exception as exc:  # a bug must cost one map, not the node
+            return self.count("internal_error", f"instance map {msg.sequence} failed: {exc!r}")
         self.last_map_seq = msg.sequence
         self.get_logger().debug(f"map {msg.sequence}: {graph.num_nodes} nodes, {graph.num_edges} edges")
 

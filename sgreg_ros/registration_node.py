@@ -61,6 +61,7 @@ class RegistrationNode(Node):
             max_nodes=p["max_nodes"],
             max_points=p["max_points"])
         self.agent = AgentCore(agent_cfg, model)
+        self.agent.warm_up()
         self.registrar = Registrar(reg_cfg, self.agent, model, log=self.get_logger().warning)
         self.fixed_peers = [x for x in p["peers"] if x]
         self.result_seq = 0
@@ -107,20 +108,30 @@ class RegistrationNode(Node):
         except (convert.ConversionError, AgentInputError) as exc:
             self.registrar.counters["bad_instance_map"] += 1
             self.get_logger().warning(f"instance map refused: {exc}")
+        except Exception as exc:  # a bug must cost one map, not the node
+            self.internal_error("instance map", exc)
 
     def on_coarse(self, raw: bytes) -> None:
         graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse")
         if graph is None:
             return
-        estimate, request = self.registrar.on_coarse(graph, time.monotonic())
+        try:
+            estimate, request = self.registrar.on_coarse(graph, time.monotonic())
+        except Exception as exc:  # a bug must cost one estimate, not the node
+            return self.internal_error(f"coarse graph {graph.sequence} of {graph.agent_id}", exc)
         if request is not None:
             self.send_request(request)
         self.publish(estimate)
 
     def on_dense(self, raw: bytes) -> None:
         graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense")
-        if graph is not None:
-            self.publish(self.registrar.on_dense(graph, time.monotonic()))
+        if graph is None:
+            return
+        try:
+            estimate = self.registrar.on_dense(graph, time.monotonic())
+        except Exception as exc:  # a bug must cost one estimate, not the node
+            return self.internal_error(f"dense graph {graph.sequence} of {graph.agent_id}", exc)
+        self.publish(estimate)
 
     def on_tick(self) -> None:
         for request in self.registrar.on_tick(time.monotonic()):
@@ -131,6 +142,10 @@ class RegistrationNode(Node):
         summary = ", ".join(f"{p}: {'registered' if v else 'not registered'}" for p, v in verified.items()) or "no peers yet"
         self.diag_pub.publish(convert.diagnostics_msg(f"sgreg registration {self.name}", self.name,
                                                       dict(self.registrar.counters), self.now(), summary))
+
+    def internal_error(self, what: str, exc: Exception) -> None:
+        self.registrar.counters["internal_error"] += 1
+        self.get_logger().error(f"{what}: internal error {exc!r}; skipped")
 
     # ---- helpers -------------------------------------------------------------------------
     def _decode(self, fn, raw: bytes, cls, what: str):

@@ -5,12 +5,16 @@ from __future__ import annotations
 import sys
 
 import rclpy
+import torch
 from rclpy.executors import ExternalShutdownException
 
 from .params import ParameterError
 
 
 def run_node(factory, args=None) -> int:
+    # One torch thread per node: the graphs are small, and each robot runs two nodes; several
+    # threads per process only fight over the cores (measured several times slower under load).
+    torch.set_num_threads(1)
     rclpy.init(args=args)
     node = None
     try:

@@ -11,11 +11,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .clique import clique_pyramid
 from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
-from .solvers import fit_rigid, principal_spread, residuals
+from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
 from .verify import CloudVerifier, Verification
 
 
@@ -160,17 +161,28 @@ def _refine(src, ref, w, bounds, T, dof) -> np.ndarray:
 
 
 def _icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
-    """Point-to-plane ICP (open3d) of the verifier's voxelised clouds starting at T."""
-    import open3d as o3d  # slow import, only when ICP is asked for
-
-    reg = o3d.pipelines.registration
-    s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(verifier.src))
-    r = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(verifier.ref))
-    r.normals = o3d.utility.Vector3dVector(verifier.normals)
-    out = reg.registration_icp(s, r, cfg.icp_distance, T,
-                               reg.TransformationEstimationPointToPlane(),
-                               reg.ICPConvergenceCriteria(max_iteration=cfg.icp_max_iters))
-    return np.asarray(out.transformation, dtype=np.float64)
+    """Point-to-plane ICP of the verifier's voxelised clouds starting at T, on the verifier's
+    KD-tree and normals: Gauss-Newton steps of the linearised (small-angle) residual. Plain
+    numpy, so the runtime needs no Open3D import (slow, and it failed inside ROS processes)."""
+    T = np.asarray(T, dtype=np.float64).copy()
+    for _ in range(cfg.icp_max_iters):
+        moved = apply_T(T, verifier.src)
+        dist, nn = verifier.tree.query(moved, k=1, distance_upper_bound=cfg.icp_distance)
+        near = np.isfinite(dist)
+        if near.sum() < 6:
+            break
+        p, q, n = moved[near], verifier.ref[nn[near]], verifier.normals[nn[near]]
+        A = np.concatenate([np.cross(p, n), n], axis=1)          # d(residual)/d(rotvec, t)
+        b = np.einsum("ij,ij->i", q - p, n)
+        if cfg.dof == 4:   # yaw and translation only
+            A = A[:, 2:]
+        step, *_ = np.linalg.lstsq(A, b, rcond=None)
+        rotvec, t = (np.r_[0.0, 0.0, step[0]], step[1:]) if cfg.dof == 4 else (step[:3], step[3:])
+        dT = make_T(Rotation.from_rotvec(rotvec).as_matrix(), t)
+        T = dT @ T
+        if np.linalg.norm(step) < 1e-6:
+            break
+    return T
 
 
 def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None,

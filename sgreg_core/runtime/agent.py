@@ -41,6 +41,11 @@ class AgentCore:
         self.stamp = 0.0
         self.timing_ms: dict = {}
 
+    def warm_up(self) -> None:
+        """Load the text encoder now: its first use takes seconds, which would otherwise
+        delay the agent's first graph."""
+        self.model.text_encoder.encode(["floor"])
+
     @property
     def ready(self) -> bool:
         return self.features is not None

@@ -135,10 +135,12 @@ class Registrar:
         dm = self.model.match_dense(own, peer, timings)
         link.dense, link.dense_cloud = msg, msg.points
         pts = dm.points
-        result = self._run_pose(link, "dense", len(dm.nodes), pts.src_xyz, pts.ref_xyz, pts.score,
-                                link.dense_cloud, timings, t0, dense_seq=msg.sequence)
-        if self.cfg.keep_correspondences and len(pts):
-            link.kept_own, link.kept_peer, link.kept_score = pts.src_xyz, pts.ref_xyz, pts.score
+        result, inliers = self._run_pose(link, "dense", len(dm.nodes), pts.src_xyz, pts.ref_xyz,
+                                         pts.score, link.dense_cloud, timings, t0, dense_seq=msg.sequence)
+        if self.cfg.keep_correspondences and result.verified:
+            # only the verified inliers: clean and few, so merged estimates stay fast
+            link.kept_own, link.kept_peer, link.kept_score = (
+                pts.src_xyz[inliers], pts.ref_xyz[inliers], pts.score[inliers])
         return result
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
@@ -242,10 +244,12 @@ class Registrar:
             mode = "merged"
         if len(matches) < self.cfg.min_coarse_matches and mode == "coarse":
             return self._unverified(link, mode, "too_few_matches", len(matches), timings, t0)
-        return self._run_pose(link, mode, len(matches), src, ref, score, link.dense_cloud, timings, t0)
+        return self._run_pose(link, mode, len(matches), src, ref, score, link.dense_cloud, timings, t0)[0]
 
     def _run_pose(self, link: PeerLink, mode: str, node_matches: int, src, ref, score,
-                  peer_cloud, timings: dict, t0: float, dense_seq: int | None = None) -> Estimate:
+                  peer_cloud, timings: dict, t0: float,
+                  dense_seq: int | None = None) -> tuple[Estimate, np.ndarray]:
+        """The estimate, and which of the given correspondences are its inliers."""
         t_pose = time.perf_counter()
         # Solved peer -> own and inverted: verification checks the sparse peer points (K per
         # requested node) against the agent's full cloud, not the other way round, where most
@@ -281,7 +285,7 @@ class Registrar:
         if verified:
             self._count("verified")
             link.last_verified = est
-        return est
+        return est, np.asarray(res.inlier_mask, bool)
 
     def _unverified(self, link: PeerLink, mode: str, reason: str, node_matches: int,
                     timings: dict, t0: float) -> Estimate:
