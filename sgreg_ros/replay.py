@@ -152,8 +152,9 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         t0 = time.monotonic()
 
         def play():
+            # only the nodes' inputs: the ground-truth topic has no subscriber to wait for
             play_result["report"] = play_bag(player, bag, rate=cfg.rate, delay=0.5, wait_subscribers=10.0,
-                                             log=log)
+                                             topics=[f"/{n}/mapping/instances" for n in names], log=log)
 
         thread = threading.Thread(target=play, daemon=True)
         thread.start()

@@ -29,8 +29,8 @@ def agent_maps(names, seed=0, rooms=1):
     maps, frames = {}, {}
     k = len(names)
     for i, name in enumerate(names):
-        start = lo + (hi - lo) * 0.3 * i / max(k - 1, 1)
-        keep = (x >= start) & (x <= start + 0.7 * (hi - lo)) & (owner == i)
+        start = lo + (hi - lo) * 0.25 * i / max(k - 1, 1)
+        keep = (x >= start) & (x <= start + 0.75 * (hi - lo)) & (owner == i)
         part = select_points(scene, keep)
         T = yaw_transform(rng.uniform(-np.pi, np.pi), (*rng.uniform(-8, 8, 2), 0.0))
         frames[name] = T
