@@ -1,0 +1,205 @@
+"""Registration cases of the benchmark, cut from real scans, every one seeded.
+
+Settings:
+    clean / noisy      two partial views of one capture of a tested room that share no point
+                       sample (pairs.make_pair), yaw uniform in [-180, 180); noisy adds every
+                       front-end imperfection of NoiseConfig's presets to each view.
+    rescan             one capture of a room against another capture of it (pseudo ground truth
+                       from rescan_gt.json, accepted entries only), the source moved by a random
+                       4-DoF transform per seed: held-out rooms in both directions with
+                       `rescan_seeds` seeds each, rooms seen in training in the listed direction
+                       with `rescan_seen_seeds` (they are many, and only a side note).
+Every case says whether its room was held out of training (CaseConfig.held_out_rooms).
+    different_rooms    a partial view of a tested room against a partial view of another room,
+                       random 4-DoF: there is no right answer, any claimed success is false.
+
+Public API:
+    CaseConfig
+    Case                  setting, name, src, ref, T_gt (None: no solution), gt node pairs,
+                          held_out
+    SETTINGS              the setting names, in report order
+    build_cases(cfg) -> list[Case]
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import invert_transform, transform_points, yaw_transform
+from ..instance_map import InstanceMapError, labelled_mask, read_instance_map
+from ..pairs import NoiseConfig, PairConfig, make_pair, node_iou
+from ..types import InstanceMap
+
+SETTINGS = ("clean", "noisy", "rescan", "different_rooms")
+NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
+
+
+@dataclass
+class CaseConfig:
+    """scans_dir:        instance map directories of real scans.
+    scan_prefix:         scans used (picwoon: 50k-point subsamples; mmdet3d duplicates rooms).
+    rooms:               tested rooms (scene ids); default the room held out of training.
+    held_out_rooms:      rooms the network never saw in training (the others are flagged
+                         "seen in training" in the report).
+    other_rooms:         rooms for the different-room check; empty = every other room found.
+    rescan_gt:           pseudo ground truth between captures ("" skips the rescan setting).
+    n:                   pairs per setting for clean, noisy and different_rooms.
+    rescan_seeds:        random 4-DoF transforms per rescan direction of a held-out room.
+    rescan_seen_seeds:   random 4-DoF transforms per rescan pair of a room seen in training.
+    overlap:             share of the points both views cover, uniform in this range (the
+                         training range of the shipped model).
+    halves_prob:         probability that the views split every point (half density each)
+                         instead of the shared band only (see pairs.PairConfig.disjoint).
+    noise:               NoiseConfig presets of the noisy setting.
+    max_translation:     m, horizontal translation of the random transforms.
+    iou_voxel:           m, voxel of the ground-truth node IoU.
+    seed:                seed of every random choice."""
+
+    scans_dir: str = "/work/shared/data/scans"
+    scan_prefix: str = "scannet-picwoon_"
+    rooms: tuple[str, ...] = ("scene0005",)
+    held_out_rooms: tuple[str, ...] = ("scene0005",)
+    other_rooms: tuple[str, ...] = ()
+    rescan_gt: str = "/work/shared/data/rescan_gt.json"
+    n: int = 10
+    rescan_seeds: int = 3
+    rescan_seen_seeds: int = 1
+    overlap: tuple[float, float] = (0.3, 0.8)
+    halves_prob: float = 0.3
+    noise: str = NOISE_ALL
+    max_translation: float = 10.0
+    iou_voxel: float = 0.1
+    seed: int = 0
+
+
+@dataclass
+class Case:
+    setting: str
+    name: str
+    src: InstanceMap
+    ref: InstanceMap
+    T_gt: np.ndarray | None                      # src -> ref; None when there is no solution
+    gt_node_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    gt_iou: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    held_out: bool = True                        # False: the room was seen in training
+
+
+@lru_cache(maxsize=16)
+def _scan(path: str) -> InstanceMap:
+    return read_instance_map(path)
+
+
+def _room(scan: str) -> str:
+    """'scannet-picwoon_scene0005_01' -> 'scene0005'."""
+    return scan.rsplit("_", 2)[-2]
+
+
+def _scans(cfg: CaseConfig) -> list[str]:
+    root = Path(cfg.scans_dir)
+    scans = sorted(p.name for p in root.glob(cfg.scan_prefix + "*") if p.is_dir())
+    if not scans:
+        raise InstanceMapError(f"{root}: no scan directory named {cfg.scan_prefix}*")
+    return scans
+
+
+def _random_4dof(rng: np.random.Generator, max_translation: float) -> np.ndarray:
+    r, phi = max_translation * np.sqrt(rng.random()), rng.uniform(0, 2 * np.pi)
+    return yaw_transform(rng.uniform(-np.pi, np.pi),
+                         [r * np.cos(phi), r * np.sin(phi), rng.uniform(-0.5, 0.5)])
+
+
+def _moved(imap: InstanceMap, T: np.ndarray) -> InstanceMap:
+    return InstanceMap(points=transform_points(T, imap.points).astype(np.float32),
+                       instance=imap.instance, labels=imap.labels, scores=imap.scores,
+                       colors=imap.colors)
+
+
+def _pair_config(cfg: CaseConfig, rng: np.random.Generator, noisy: bool) -> PairConfig:
+    return PairConfig(overlap=float(rng.uniform(*cfg.overlap)),
+                      disjoint="halves" if rng.random() < cfg.halves_prob else "band",
+                      max_translation=cfg.max_translation, iou_voxel=cfg.iou_voxel,
+                      noise=NoiseConfig.preset(cfg.noise) if noisy else NoiseConfig())
+
+
+def _view_cases(cfg: CaseConfig, scans: list[str], setting: str) -> list[Case]:
+    noisy = setting == "noisy"
+    out = []
+    for k in range(cfg.n):
+        rng = np.random.default_rng([cfg.seed, SETTINGS.index(setting), k])
+        scan = scans[k % len(scans)]
+        pair = make_pair(_scan(str(Path(cfg.scans_dir) / scan)), _pair_config(cfg, rng, noisy), rng)
+        out.append(Case(setting, f"{scan}#{k}", pair.src, pair.ref, pair.T_src_ref,
+                        pair.gt_node_pairs, pair.gt_iou, _room(scan) in cfg.held_out_rooms))
+    return out
+
+
+def _gt_nodes(src: InstanceMap, ref: InstanceMap, T: np.ndarray,
+              voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth node pairs (src id, ref id) and their IoU in the common frame."""
+    ms, mr = labelled_mask(src), labelled_mask(ref)
+    return node_iou(transform_points(T, src.points[ms]), src.instance[ms],
+                    ref.points[mr], ref.instance[mr], voxel)
+
+
+def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
+    if not cfg.rescan_gt:
+        return []
+    entries = json.loads(Path(cfg.rescan_gt).read_text())["pairs"]
+    directions = []
+    for e in entries:
+        if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
+            T = np.asarray(e["T_src_to_ref"], np.float64)
+            directions.append((e["src"], e["ref"], T))
+            if _room(e["src"]) in cfg.held_out_rooms:
+                directions.append((e["ref"], e["src"], invert_transform(T)))
+    # held-out rooms first: they are the headline
+    directions.sort(key=lambda d: (_room(d[0]) not in cfg.held_out_rooms, d[0], d[1]))
+    out = []
+    for d, (a, b, T_ab) in enumerate(directions):
+        src0 = _scan(str(Path(cfg.scans_dir) / a))
+        ref = _scan(str(Path(cfg.scans_dir) / b))
+        pairs, iou = _gt_nodes(src0, ref, T_ab, cfg.iou_voxel)
+        held_out = _room(a) in cfg.held_out_rooms
+        for s in range(cfg.rescan_seeds if held_out else cfg.rescan_seen_seeds):
+            rng = np.random.default_rng([cfg.seed, SETTINGS.index("rescan"), d, s])
+            A = _random_4dof(rng, cfg.max_translation)
+            out.append(Case("rescan", f"{a}->{b}#{s}", _moved(src0, A), ref,
+                            T_ab @ invert_transform(A), pairs, iou, held_out))
+    return out
+
+
+def _different_room_cases(cfg: CaseConfig, tested: list[str], others: list[str]) -> list[Case]:
+    out = []
+    for k in range(cfg.n if others else 0):
+        rng = np.random.default_rng([cfg.seed, SETTINGS.index("different_rooms"), k])
+        a, b = tested[k % len(tested)], others[k % len(others)]
+        view = make_pair(_scan(str(Path(cfg.scans_dir) / a)), _pair_config(cfg, rng, False), rng).src
+        ref = make_pair(_scan(str(Path(cfg.scans_dir) / b)), _pair_config(cfg, rng, False), rng).ref
+        out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,
+                        held_out=_room(a) in cfg.held_out_rooms))
+    return out
+
+
+def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[Case]:
+    """Every case of the requested settings, in SETTINGS order (rescans: held-out first)."""
+    scans = _scans(cfg)
+    tested = [s for s in scans if _room(s) in cfg.rooms]
+    if not tested:
+        raise InstanceMapError(f"{cfg.scans_dir}: no {cfg.scan_prefix}* scan of rooms {list(cfg.rooms)}")
+    others = [s for s in scans if _room(s) not in cfg.rooms
+              and (not cfg.other_rooms or _room(s) in cfg.other_rooms)]
+    cases: list[Case] = []
+    for setting in SETTINGS:
+        if setting not in settings:
+            continue
+        if setting in ("clean", "noisy"):
+            cases += _view_cases(cfg, tested, setting)
+        elif setting == "rescan":
+            cases += _rescan_cases(cfg, set(scans))
+        else:
+            cases += _different_room_cases(cfg, tested, others)
+    return cases

@@ -1,0 +1,166 @@
+"""Run sgreg (dense and coarse) and the classical peers on the same cases and score each run.
+
+What a method is timed on:
+    sgreg_dense   instance maps in -> T out: both scene graphs built, both encoded (text,
+                  shape, GNN), node + point matching, pose estimation with verification.
+    sgreg_coarse  node matching + pose estimation (with verification on the node clouds) from
+                  graphs already encoded; graph building and encoding are not included.
+    peers         raw points in -> T out (downsampling, normals, features, ICP; see baselines).
+Wall time (time_ms) is what the targets name; cpu_ms (process CPU time over all threads) is
+reported next to it because the machine is shared.
+
+Every method's claim of success is checked against the ground truth: success means
+registration RMSE < max_rmse (metrics.registration_success); a claim without it is a false
+claim. Cases without a solution (different rooms) make every claim false.
+
+Public API:
+    METHODS
+    BenchConfig
+    run_case(model, case, cfg) -> list of per-method row dicts
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..baselines import BASELINES, BaselineConfig
+from ..metrics import inlier_ratio, node_match_scores, registration_rmse, registration_success, rre, rte
+from ..register import (RegisterConfig, Registration, build_graphs, node_cloud, register_features,
+                        register_graphs)
+from .cases import SETTINGS, Case, CaseConfig
+
+SGREG_METHODS = ("sgreg_dense", "sgreg_coarse")
+METHODS = SGREG_METHODS + tuple(BASELINES)
+
+
+@dataclass
+class BenchConfig:
+    """cases:          which pairs (see bench.cases.CaseConfig).
+    register:          sgreg's pipeline; its mode is set per method (dense / coarse).
+    baseline:          settings of the classical peers.
+    methods:           methods run on every case (subset of METHODS).
+    settings:          case settings run (subset of bench.cases.SETTINGS).
+    weights:           model .safetensors ("" = the shipped model).
+    max_rmse:          m, registration success threshold (registration recall).
+    min_iou:           a ground-truth node pair needs this IoU (node recall / precision).
+    inlier_threshold:  m, a correspondence is a true inlier when its ground-truth residual is
+                       below this.
+    threads:           torch threads."""
+
+    cases: CaseConfig = field(default_factory=CaseConfig)
+    register: RegisterConfig = field(default_factory=RegisterConfig)
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)
+    methods: tuple[str, ...] = METHODS
+    settings: tuple[str, ...] = SETTINGS
+    weights: str = ""
+    max_rmse: float = 0.2
+    min_iou: float = 0.3
+    inlier_threshold: float = 0.1
+    threads: int = 1
+
+    def __post_init__(self):
+        bad = [m for m in self.methods if m not in METHODS]
+        if bad:
+            raise ValueError(f"unknown method(s) {bad}; choose from {list(METHODS)}")
+        bad = [s for s in self.settings if s not in SETTINGS]
+        if bad:
+            raise ValueError(f"unknown setting(s) {bad}; choose from {list(SETTINGS)}")
+
+
+def _score(case: Case, method: str, T: np.ndarray, claimed: bool, time_ms: float,
+           cpu_ms: float, max_rmse: float) -> dict:
+    row = {"group": case.setting if case.held_out else f"{case.setting}_seen",
+           "setting": case.setting, "case": case.name, "held_out": case.held_out,
+           "method": method, "claimed": bool(claimed), "time_ms": float(time_ms),
+           "cpu_ms": float(cpu_ms),
+           "T": np.asarray(T, np.float64).round(6).tolist()}
+    if case.T_gt is None:
+        row.update(success=False, rmse=float("nan"), rre=float("nan"), rte=float("nan"))
+    else:
+        row.update(success=registration_success(case.src.points, T, case.T_gt, max_rmse),
+                   rmse=registration_rmse(case.src.points, T, case.T_gt),
+                   rre=rre(T, case.T_gt), rte=rte(T, case.T_gt))
+    row["false_claim"] = row["claimed"] and not row["success"]
+    return row
+
+
+def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
+               cfg: BenchConfig) -> dict:
+    row = _score(case, method, reg.T, reg.success, reg.timing_ms["total"], cpu_ms, cfg.max_rmse)
+    nodes = node_match_scores(reg.node_pairs, case.gt_node_pairs, case.gt_iou, cfg.min_iou)
+    nan = float("nan")
+    has_gt = case.T_gt is not None
+    row.update(reason=reg.reason, node_matches=reg.node_matches, gt_node_matches=nodes.ground_truth,
+               node_recall=nodes.recall if has_gt else nan,
+               node_precision=nodes.precision if has_gt else nan,
+               correspondences=reg.correspondences, inliers=reg.inliers,
+               fitness=reg.fitness,
+               # share of the correspondences that are right (before pose estimation)
+               inlier_ratio=(inlier_ratio(reg.src_xyz, reg.ref_xyz, case.T_gt, cfg.inlier_threshold)
+                             if has_gt and reg.correspondences else nan),
+               # share of what the estimator kept as inliers that is right
+               pseudo_inlier_ratio=(inlier_ratio(reg.src_xyz[reg.inlier_mask],
+                                                 reg.ref_xyz[reg.inlier_mask], case.T_gt,
+                                                 cfg.inlier_threshold)
+                                    if has_gt and reg.inlier_mask.any() else nan))
+    row.update({f"ms_{k}": float(v) for k, v in reg.timing_ms.items()})
+    row.update({f"ms_pose_{k}": float(v) for k, v in reg.pose_timing_ms.items()})
+    row["refined"] = reg.refined
+    return row
+
+
+def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
+    rows = []
+    timings: dict = {}
+    cpu0 = time.process_time()
+    src_graph, ref_graph = build_graphs(case.src, case.ref, cfg.register, timings)
+    if "sgreg_dense" in cfg.methods:
+        reg = register_graphs(model, src_graph, ref_graph, replace(cfg.register, mode="dense"),
+                              timings)
+        rows.append(_sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg))
+    if "sgreg_coarse" in cfg.methods:
+        # a coarse message carries what encode(dense=False) gives; only matching + pose timed
+        src, ref = model.encode(src_graph, dense=False), model.encode(ref_graph, dense=False)
+        cpu0 = time.process_time()
+        reg = register_features(model, src, ref, node_cloud(src_graph), node_cloud(ref_graph),
+                                replace(cfg.register, mode="coarse"))
+        rows.append(_sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg))
+    return rows
+
+
+def _cpu_ms(cpu0: float) -> float:
+    """CPU time of this process since cpu0 (all its threads): unlike wall time, barely moved by
+    other jobs on the machine."""
+    return 1e3 * (time.process_time() - cpu0)
+
+
+def _error_row(case: Case, method: str, exc: Exception, t0: float, cfg: BenchConfig) -> dict:
+    """A method that raised counts as a failure that did not claim success; the error is kept."""
+    row = _score(case, method, np.eye(4), False, 1e3 * (time.perf_counter() - t0), float("nan"),
+                 cfg.max_rmse)
+    row["error"] = f"{type(exc).__name__}: {exc}"
+    return row
+
+
+def run_case(model, case: Case, cfg: BenchConfig) -> list[dict]:
+    """One row per method of cfg.methods (in METHODS order) for this case."""
+    rows = []
+    if any(m in cfg.methods for m in SGREG_METHODS):
+        t0 = time.perf_counter()
+        try:
+            rows += _run_sgreg(model, case, cfg)
+        except Exception as exc:  # noqa: BLE001 - one broken case must not end the benchmark
+            rows += [_error_row(case, m, exc, t0, cfg) for m in SGREG_METHODS if m in cfg.methods]
+    for name in BASELINES:
+        if name not in cfg.methods:
+            continue
+        t0, cpu0 = time.perf_counter(), time.process_time()
+        try:
+            res = BASELINES[name](case.src.points, case.ref.points, cfg.baseline)
+            rows.append(_score(case, name, res.T, res.success, res.time_ms, _cpu_ms(cpu0),
+                               cfg.max_rmse) | {"fitness": res.fitness})
+        except Exception as exc:  # noqa: BLE001
+            rows.append(_error_row(case, name, exc, t0, cfg))
+    return rows

@@ -1,0 +1,138 @@
+"""`sgreg register` and `sgreg bench-register` on synthetic instance maps, with the shipped
+weights: the result JSON contract, exit codes on bad input, coarse mode, the picture, a pair of
+different rooms refused, and the benchmark's output schema."""
+import json
+
+import numpy as np
+import pytest
+
+from sgreg_core.cli import main
+from sgreg_core.instance_map import write_instance_map
+from sgreg_core.metrics import registration_rmse
+from sgreg_core.net.model import load_model
+from sgreg_core.net.testing import toy_graph
+from sgreg_core.pairs import PairConfig, make_pair
+from sgreg_core.register import RegisterConfig, register_graphs
+from sgreg_core.synth import SynthConfig, generate_scene
+
+RESULT_KEYS = {"T": list, "success": bool, "node_matches": int, "inliers": int,
+               "timing_ms": dict, "reason": str, "weights_id": str, "mode": str,
+               "correspondences": int}
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """An easy pair cut from one synthetic apartment, and a view of a synthetic office."""
+    root = tmp_path_factory.mktemp("register")
+    apartment = generate_scene(3, SynthConfig(density=300.0))
+    pair = make_pair(apartment, PairConfig(overlap=0.8), np.random.default_rng(1))
+    write_instance_map(pair.src, root / "src")
+    write_instance_map(pair.ref, root / "ref")
+    office = generate_scene(4, SynthConfig(kind="office", density=300.0))
+    write_instance_map(make_pair(office, PairConfig(overlap=0.8), np.random.default_rng(2)).ref,
+                       root / "other")
+    return root, pair
+
+
+def _register(root, *extra) -> tuple[int, dict]:
+    out = root / "out.json"
+    out.unlink(missing_ok=True)
+    code = main(["register", str(root / extra[0]), str(root / extra[1]), "--json", str(out),
+                 *extra[2:]])
+    return code, json.loads(out.read_text())
+
+
+def test_register_writes_the_result_contract(data, capsys, tmp_path):
+    root, pair = data
+    png = tmp_path / "reg.png"
+    code, res = _register(root, "src", "ref", "--png", str(png))
+    for key, kind in RESULT_KEYS.items():
+        assert isinstance(res[key], kind), key
+    assert res["fitness"] is None or isinstance(res["fitness"], float)
+    assert res["mode"] == "dense" and code == (0 if res["success"] else 1)
+    T = np.array(res["T"])
+    assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
+    assert {"graph", "gnn", "shape", "node_match", "point_match", "pose", "total"} <= set(res["timing_ms"])
+    # an easy pair (80 % overlap, clean): registered, and T maps SRC into REF
+    assert res["success"], res["reason"]
+    assert registration_rmse(pair.src.points, T, pair.T_src_ref) < 0.2
+    out = capsys.readouterr().out
+    assert "T (SRC -> REF)" in out and "registered:" in out
+    assert png.stat().st_size > 10_000
+
+
+def test_coarse_mode(data):
+    root, pair = data
+    code, res = _register(root, "src", "ref", "--coarse")
+    assert res["mode"] == "coarse" and code == (0 if res["success"] else 1)
+    assert "point_match" not in res["timing_ms"]
+    # coarse correspondences are the node matches themselves
+    assert res["correspondences"] == res["node_matches"]
+    if res["success"]:
+        assert registration_rmse(pair.src.points, np.array(res["T"]), pair.T_src_ref) < 0.2
+
+
+def test_different_rooms_are_not_registered(data):
+    root, _ = data
+    for mode in ([], ["--coarse"]):
+        code, res = _register(root, "src", "other", *mode)
+        assert code == 1 and res["success"] is False and res["reason"] != "ok"
+
+
+@pytest.mark.parametrize("problem", ["missing", "malformed"])
+def test_bad_input_is_one_line_exit_2(data, tmp_path, capsys, problem):
+    root, _ = data
+    bad = tmp_path / "bad"
+    if problem == "malformed":
+        bad.mkdir()
+        (bad / "points.npy").write_bytes(b"not numpy")
+    code = main(["register", str(bad), str(root / "ref"), "--json", str(tmp_path / "o.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("sgreg register: ") and "\n" not in err
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_tiny_graphs_are_refused_without_matching():
+    graph = toy_graph(np.random.default_rng(0), n=2)
+    reg = register_graphs(load_model(), graph, graph, RegisterConfig())
+    assert not reg.success and reg.reason == "too_few_nodes" and np.allclose(reg.T, np.eye(4))
+
+
+def test_bench_register_schema(tmp_path, capsys):
+    scans = tmp_path / "scans"
+    write_instance_map(generate_scene(5, SynthConfig(density=200.0)), scans / "toy_scene0009_00")
+    write_instance_map(generate_scene(6, SynthConfig(kind="office", density=200.0)),
+                       scans / "toy_scene0008_00")
+    out = tmp_path / "bench"
+    code = main(["bench-register", "--scans", str(scans), "--scan-prefix", "toy_",
+                 "--rooms", "scene0009", "--held-out-rooms", "scene0009", "--rescan-gt", "",
+                 "--n", "2", "--methods", "sgreg_dense", "sgreg_coarse", "kiss_matcher",
+                 "--out", str(out), "--no-progress"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "clean" in printed and "different_rooms" in printed and "kiss_matcher" in printed
+    results = json.loads((out / "results.json").read_text())
+    config = json.loads((out / "config.json").read_text())
+    assert config["config"]["cases"]["n"] == 2 and config["weights_id"] == results["weights_id"]
+    assert (out / "recall.png").stat().st_size > 10_000
+    summary = results["summary"]
+    assert set(summary) == {"clean", "noisy", "different_rooms"}
+    for group, by_method in summary.items():
+        assert set(by_method) == {"sgreg_dense", "sgreg_coarse", "kiss_matcher"}
+        for method, s in by_method.items():
+            assert s["n"] == 2
+            for key in ("recall", "claimed_rate", "false_claims", "median_rte_m",
+                        "median_rre_deg", "time_ms_median", "time_ms_p90"):
+                assert key in s
+            if method.startswith("sgreg"):
+                for key in ("node_recall", "node_precision", "inlier_ratio",
+                            "pseudo_inlier_ratio", "stage_ms_median", "reasons"):
+                    assert key in s
+    assert len(results["rows"]) == 3 * 2 * 3
+    for row in results["rows"]:
+        assert {"setting", "case", "method", "claimed", "success", "false_claim", "rmse",
+                "time_ms"} <= set(row)
+        if row["setting"] == "different_rooms":
+            assert row["success"] is False and row["false_claim"] == row["claimed"]
+    # sgreg never claims a wrong answer on these
+    assert all(not r["false_claim"] for r in results["rows"] if r["method"].startswith("sgreg"))
