@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
@@ -140,10 +141,11 @@ class BagRecorder:
         self.writer.close()
 
 
-def spin_until(node, done, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if done():
-            return True
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return done()
+def spin_for(node, duration: float) -> None:
+    """Spin `node` for `duration` seconds (0: until Ctrl-C or SIGTERM), for the live tools."""
+    start = time.monotonic()
+    try:
+        while rclpy.ok() and (duration <= 0 or time.monotonic() - start < duration):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass

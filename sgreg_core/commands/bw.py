@@ -39,9 +39,8 @@ def run(args) -> int:
         return 0
 
     import rclpy
-    from rclpy.executors import ExternalShutdownException
 
-    from sgreg_ros.bags import message_class, qos_for
+    from sgreg_ros.bags import message_class, qos_for, spin_for
 
     rclpy.init()
     node = rclpy.create_node("sgreg_bw")
@@ -63,12 +62,8 @@ def run(args) -> int:
 
     node.create_timer(1.0, watch)
     node.create_timer(max(1.0, args.window / 5), show)
-    start = time.monotonic()
     try:
-        while rclpy.ok() and (args.duration <= 0 or time.monotonic() - start < args.duration):
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_for(node, args.duration)
     finally:
         show()
         node.destroy_node()

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import sys
-import time
 
 NAME = "record"
 HELP = "record live topics into a rosbag2 (MCAP)"
@@ -16,9 +15,8 @@ def add_arguments(p):
 
 def run(args) -> int:
     import rclpy
-    from rclpy.executors import ExternalShutdownException
 
-    from sgreg_ros.bags import BagError, BagRecorder
+    from sgreg_ros.bags import BagError, BagRecorder, spin_for
 
     rclpy.init()
     node = rclpy.create_node("sgreg_record")
@@ -41,12 +39,8 @@ def run(args) -> int:
 
     node.create_timer(0.5, discover)
     print(f"recorder ready, waiting for {', '.join(args.topics)}", flush=True)
-    start = time.monotonic()
     try:
-        while rclpy.ok() and (args.duration <= 0 or time.monotonic() - start < args.duration):
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_for(node, args.duration)
     finally:
         recorder.close()
         node.destroy_node()
