@@ -51,7 +51,8 @@ def _dense_pose() -> PoseConfig:
     verifier (voxelisation and normals of the reference cloud, most of the pose time) costs
     about half, and it separates right from wrong poses as well: on views of the rooms seen in
     training, fitness >= 0.4 for right poses and <= 0.12 for views of two different rooms on
-    either grid, either side of min_fitness = 0.3."""
+    either grid. min_fitness is 0.5 (PoseConfig): a view of a different synthetic room reached
+    0.38 with the fully trained model, right poses of the same scenes 0.59-0.76."""
     return PoseConfig(verify_voxel=0.1)
 
 

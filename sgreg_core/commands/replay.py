@@ -29,7 +29,6 @@ def _fmt_T(T) -> str:
 
 
 def run(args) -> int:
-    import numpy as np
 
     from sgreg_ros.bags import BagError
     from sgreg_ros.replay import ReplayConfig, ground_truth_of, run_replay

@@ -61,7 +61,7 @@ class PoseConfig:
     min_inlier_spread: float = 0.2
     verify_voxel: float = 0.05
     verify_tau: float = 0.1
-    min_fitness: float = 0.3
+    min_fitness: float = 0.5
     verify_max_points: int = 5000
     icp: bool = False
     icp_max_iters: int = 30

@@ -8,14 +8,31 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
-from sgreg_msgs.msg import CoarseGraph, DenseRequest, InstanceMap, RegistrationResult
+from sgreg_msgs.msg import InstanceMap, RegistrationResult
 
 from sgreg_core.geometry import transform_points, yaw_transform
+from sgreg_core.metrics import two_agent_success
+from sgreg_core.replay_score import ground_truth
 from sgreg_core.instance_map import select_points
 from sgreg_core.synth.scene import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap as CoreMap
 from sgreg_ros import launch, qos
 from sgreg_ros.convert import instance_map_to_msg, transform_from_msg
+
+
+# quick protocol timings so that tests see requests, retries and give-ups within seconds
+FAST = {"min_request_interval_s": 2.0, "request_timeout_s": 1.0, "retry_backoff": 2.0, "max_retries": 2,
+        "dense_min_interval_s": 0.5}
+
+
+def verified_pairs_ok(w, frames, pairs):
+    """The last verified transform of every (agent, peer) pair is within the success criterion."""
+    for agent, peer in pairs:
+        got = w.transforms.get((agent, peer))
+        if not got or not two_agent_success(got[-1], ground_truth(frames, agent, peer)):
+            return False
+    return True
+
 
 
 def agent_maps(names, seed=0, rooms=1):
@@ -101,4 +118,4 @@ def alive(procs):
     return [f"{p.agent}/{p.executable}" for p in procs if p.proc.poll() is not None]
 
 
-__all__ = ["agent_maps", "Watcher", "launch", "alive", "CoarseGraph", "DenseRequest"]
+__all__ = ["FAST", "agent_maps", "Watcher", "launch", "alive", "verified_pairs_ok"]

@@ -1,0 +1,53 @@
+"""Three agents' nodes register pairwise, and bad parameters are refused at start. A module of
+its own: the two-agent nodes of test_nodes.py (same names, same domain) are gone by then."""
+import subprocess
+
+import pytest
+import rclpy
+
+from sgreg_core.metrics import two_agent_success
+from sgreg_core.replay_score import ground_truth
+
+from .harness import FAST, Watcher, agent_maps, alive, launch, verified_pairs_ok
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+def test_three_agents_register_pairwise(ros, tmp_path):
+    names = ["a", "b", "c"]
+    maps, frames = agent_maps(names, seed=12)
+    procs = launch.start_agents(names, overrides=FAST, log_dir=tmp_path)
+    w = Watcher(names)
+    try:
+        assert w.wait_ready(names), f"dead: {alive(procs)}"
+        # each pair of agents registered (one direction gives the other by inversion)
+        pairs = [("a", "b"), ("a", "c"), ("b", "c")]
+
+        def registered(x, y):
+            return verified_pairs_ok(w, frames, [(x, y)]) or verified_pairs_ok(w, frames, [(y, x)])
+
+        assert w.spin_until(lambda: all(registered(x, y) for x, y in pairs), 200, publish_maps=maps), (
+            {p: len(w.transforms.get(p, [])) for p in w.transforms})
+        for (agent, peer), Ts in w.transforms.items():
+            assert all(two_agent_success(T, ground_truth(frames, agent, peer)) for T in Ts), (agent, peer)
+    finally:
+        launch.stop(procs)
+        w.close()
+
+
+@pytest.mark.parametrize("exe,params,words", [
+    ("agent", {"coarse_rate_hz": -1.0}, "coarse_rate_hz"),
+    ("agent", {"feature_encoding": "bits"}, "feature_encoding"),
+    ("registration", {"max_retries": "three"}, "max_retries"),
+])
+def test_invalid_parameters_are_refused_at_start(exe, params, words):
+    out = subprocess.run(launch.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "refusing to start" in out.stderr and words in out.stderr
+    assert "Traceback" not in out.stderr
