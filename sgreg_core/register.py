@@ -11,9 +11,10 @@ Either way the verification clouds are all node points of each graph (what a den
 carries), so even a coarse estimate is checked against geometry when the clouds are at hand.
 Node centers of partly seen objects move with what was seen, so coarse mode has its own
 PoseConfig with a wider inlier bound, and by default its accepted pose is refined by ICP on
-the verification clouds: a pose from centers is off by decimetres and a few degrees, which
-the verification at 10 cm can still accept. A refined pose replaces the estimate only when it
-does not lower the verification fitness.
+the verification clouds: a pose from centers is off by decimetres and a few degrees. When ICP
+runs, the verification verdict (min_fitness) is taken on the better supported of the estimate
+and its refinement, so a pair is neither accepted on a pose ICP could not hold nor turned away
+for a raw pose ICP aligns.
 
 Public API:
     RegisterConfig                 graph, dense / coarse PoseConfig, mode, icp, min_nodes
@@ -22,7 +23,7 @@ Public API:
     build_graphs(src_map, ref_map, cfg, timings) -> (src_graph, ref_graph)   ("graph" stage)
     register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings)
     node_cloud(graph) -> (N, 3)    all node points of a graph (the verification cloud)
-    warm_up(model)                 load the text encoder and Open3D now, so no timing includes it
+    warm_up(model)                 load the text encoder now, so that no timing includes it
     TIMING_STAGES                  the keys of Registration.timing_ms, in pipeline order
 """
 from __future__ import annotations
@@ -163,10 +164,8 @@ def node_cloud(graph: SceneGraph) -> np.ndarray:
 
 
 def warm_up(model: SGRegModel) -> None:
-    """Load the text encoder's weights and import Open3D (ICP), one-offs of seconds on first
-    use, so that registration timings measure registration."""
-    import open3d  # noqa: F401 - the import is the point
-
+    """Load the text encoder's weights (seconds, on first use) so that registration timings
+    measure registration."""
     model.text_encoder.encode(["object"])
 
 
@@ -208,18 +207,26 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         out.reason = "no_node_matches"
         return _finish(out, timings, t_start, own_total)
 
+    pose_cfg = cfg.pose_config()
+    # With ICP the verdict is taken on the better of the estimate and its refinement: a pose
+    # from node centers is decimetres off, and the clouds would turn away the raw pose of a
+    # pair that ICP aligns. The estimator is asked for its other checks only (min_fitness 0).
+    judge_refined = pose_cfg.icp and src_cloud is not None and ref_cloud is not None
     t0 = time.perf_counter()
-    res = estimate_pose(out.src_xyz, out.ref_xyz, weights, src_cloud, ref_cloud, cfg.pose_config())
+    res = estimate_pose(out.src_xyz, out.ref_xyz, weights, src_cloud, ref_cloud,
+                        replace(pose_cfg, min_fitness=0.0) if judge_refined else pose_cfg)
     _add(timings, "pose", t0)
     out.success, out.reason = bool(res.success), res.reason
     out.inlier_mask = res.inlier_mask
     out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
     out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
-    # ICP can slide into a wrong minimum (along a wall, across the floor): keep its pose only
-    # when the clouds support it at least as well as the estimate they accepted
+    # ICP can also slide into a wrong minimum (along a wall, across the floor): its pose
+    # replaces the estimate only when the clouds support it at least as well
     out.refined = res.T_icp is not None and res.icp_fitness >= res.fitness
-    out.T, out.fitness = (res.T_icp, res.icp_fitness) if out.refined else (res.T, res.fitness)
-    out.fitness = float(out.fitness)
+    T, fitness = (res.T_icp, res.icp_fitness) if out.refined else (res.T, res.fitness)
+    out.T, out.fitness = T, float(fitness)
+    if judge_refined and out.success and not out.fitness >= pose_cfg.min_fitness:
+        out.success, out.reason = False, "verification_failed"
     return _finish(out, timings, t_start, own_total)
 
 

@@ -177,8 +177,9 @@ def _different_room_cases(cfg: CaseConfig, tested: list[str], others: list[str])
     for k in range(cfg.n if others else 0):
         rng = np.random.default_rng([cfg.seed, SETTINGS.index("different_rooms"), k])
         a, b = tested[k % len(tested)], others[k % len(others)]
-        view = make_pair(_scan(str(Path(cfg.scans_dir) / a)), _pair_config(cfg, rng, False), rng).src
-        ref = make_pair(_scan(str(Path(cfg.scans_dir) / b)), _pair_config(cfg, rng, False), rng).ref
+        root = Path(cfg.scans_dir)
+        view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng, False), rng).src
+        ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng, False), rng).ref
         out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,
                         held_out=_room(a) in cfg.held_out_rooms))
     return out
@@ -189,7 +190,8 @@ def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[C
     scans = _scans(cfg)
     tested = [s for s in scans if _room(s) in cfg.rooms]
     if not tested:
-        raise InstanceMapError(f"{cfg.scans_dir}: no {cfg.scan_prefix}* scan of rooms {list(cfg.rooms)}")
+        raise InstanceMapError(f"{cfg.scans_dir}: no {cfg.scan_prefix}* scan of rooms "
+                               f"{list(cfg.rooms)}")
     others = [s for s in scans if _room(s) not in cfg.rooms
               and (not cfg.other_rooms or _room(s) in cfg.other_rooms)]
     cases: list[Case] = []

@@ -26,7 +26,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..baselines import BASELINES, BaselineConfig
-from ..metrics import inlier_ratio, node_match_scores, registration_rmse, registration_success, rre, rte
+from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success,
+                       rre, rte)
 from ..register import (RegisterConfig, Registration, build_graphs, node_cloud, register_features,
                         register_graphs)
 from .cases import SETTINGS, Case, CaseConfig

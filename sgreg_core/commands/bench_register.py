@@ -33,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rescan-seeds", type=int, default=None,
                         help="random transforms per rescan direction, held-out rooms (default 3)")
     parser.add_argument("--rescan-seen-seeds", type=int, default=None,
-                        help="random transforms per rescan pair, rooms seen in training (default 1)")
+                        help="random transforms per rescan pair, rooms seen in training "
+                        "(default 1)")
     parser.add_argument("--methods", nargs="+", default=None, help="subset of the methods")
     parser.add_argument("--settings", nargs="+", default=None, help="subset of the settings")
     parser.add_argument("--weights", default=None, help="model .safetensors (default: shipped)")

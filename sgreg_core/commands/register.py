@@ -79,8 +79,11 @@ def run(args: argparse.Namespace) -> int:
           f"{reg.timing_ms['total']:.0f} ms (+ {startup_ms:.0f} ms loading the model)")
     if args.json_out:
         out = Path(args.json_out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=1) + "\n")
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(result, indent=1) + "\n")
+        except OSError as exc:
+            return _fail(f"cannot write {out}: {exc.strerror or exc}")
     if args.png:
         from ..plot_registration import plot_registration
 
@@ -89,5 +92,6 @@ def run(args: argparse.Namespace) -> int:
         ri = [lookup[1][int(i)] for i in reg.node_pairs[:, 1]]
         plot_registration(node_cloud(src_graph), node_cloud(ref_graph), reg.T, args.png,
                           src_graph.centers[si], ref_graph.centers[ri],
-                          title=f"{verdict}: {reg.node_matches} node matches, {reg.inliers} inliers")
+                          title=f"{verdict}: {reg.node_matches} node matches, "
+                                f"{reg.inliers} inliers")
     return 0 if reg.success else 1
