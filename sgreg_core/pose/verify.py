@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .. import geometry
 from .solvers import apply_T
 
 
@@ -30,16 +31,13 @@ class Verification:
 
 
 def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
-    """Centroid of the points in each occupied voxel; non-finite points are dropped."""
+    """Centroid of the points in each occupied voxel (geometry.voxel_downsample, float64);
+    non-finite points are dropped first."""
     pts = np.asarray(pts, np.float64)
     pts = pts[np.isfinite(pts).all(1)]
     if voxel <= 0 or pts.shape[0] == 0:
         return pts
-    keys = np.floor(pts / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    sums = np.zeros((counts.size, 3))
-    np.add.at(sums, inv.reshape(-1), pts)
-    return sums / counts[:, None]
+    return geometry.voxel_downsample(pts, voxel).astype(np.float64)
 
 
 def estimate_normals(pts: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
