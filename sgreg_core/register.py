@@ -10,11 +10,9 @@ registration node), so that what is benchmarked is what runs.
 Either way the verification clouds are all node points of each graph (what a dense message
 carries), so even a coarse estimate is checked against geometry when the clouds are at hand.
 Node centers of partly seen objects move with what was seen, so coarse mode has its own
-PoseConfig with a wider inlier bound, and by default its accepted pose is refined by ICP on
-the verification clouds: a pose from centers is off by decimetres and a few degrees. When ICP
-runs, the verification verdict (min_fitness) is taken on the better supported of the estimate
-and its refinement, so a pair is neither accepted on a pose ICP could not hold nor turned away
-for a raw pose ICP aligns.
+PoseConfig with a wider inlier bound and ICP reach. By default every estimate that passes the
+correspondence checks is refined by ICP on the verification clouds, and the estimator's verdict
+is taken on the better supported of the estimate and its refinement (pose/estimator.py).
 
 Public API:
     RegisterConfig                 graph, dense / coarse PoseConfig, mode, icp, min_nodes
@@ -34,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .net.model import NodeFeatures, SGRegModel
-from .pose import PoseConfig, estimate_pose
+from .pose import PoseConfig, ReferenceCloud, estimate_pose
 from .scene_graph import GraphConfig, build_scene_graph
 from .types import InstanceMap, SceneGraph
 
@@ -49,11 +47,8 @@ TIMING_STAGES = ("graph", "text", "sample", "shape", "gnn", "node_match", "point
 
 def _dense_pose() -> PoseConfig:
     """Verification on a 10 cm grid: a third of the 5 cm grid's points, so building the
-    verifier (voxelisation and normals of the reference cloud, most of the pose time) costs
-    about half, and it separates right from wrong poses as well: on views of the rooms seen in
-    training, fitness >= 0.4 for right poses and <= 0.12 for views of two different rooms on
-    either grid. min_fitness is 0.5 (PoseConfig): a view of a different synthetic room reached
-    0.38 with the fully trained model, right poses of the same scenes 0.59-0.76."""
+    reference (voxelisation and normals, most of the pose time) costs about half, and it
+    separates right from wrong poses as well."""
     return PoseConfig(verify_voxel=0.1)
 
 
@@ -70,17 +65,18 @@ class RegisterConfig:
     pose:           estimator settings of dense mode (point correspondences).
     coarse_pose:    estimator settings of coarse mode (node-center correspondences).
     mode:           "dense" (points) or "coarse" (node centers only).
-    icp:            when an accepted pose is refined with point-to-plane ICP on the
-                    verification clouds: "never", "coarse" (coarse mode only: node centers
-                    are decimetre-accurate, point correspondences centimetre-accurate) or
-                    "always"; overrides the pose configs' own `icp`.
+    icp:            when the estimate is refined with point-to-plane ICP on the
+                    verification clouds before the verdict: "never", "coarse" (coarse mode
+                    only) or "always" (default: even centimetre-accurate point matches leave
+                    a degree of rotation that costs a low-overlap pair its support); overrides
+                    the pose configs' own `icp`.
     min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes")."""
 
     graph: GraphConfig = field(default_factory=GraphConfig)
     pose: PoseConfig = field(default_factory=_dense_pose)
     coarse_pose: PoseConfig = field(default_factory=_coarse_pose)
     mode: str = "dense"
-    icp: str = "coarse"
+    icp: str = "always"
     min_nodes: int = 3
 
     def __post_init__(self):
@@ -109,7 +105,11 @@ class Registration:
                      mode, node centers in coarse mode), SRC and REF frames.
     inlier_mask:     (c,) bool, inliers of the estimator's pose (before any ICP).
     inliers, inlier_ratio: their count and share.
-    fitness:         verification fitness of T (NaN without clouds).
+    inlier_nodes:    node matches with at least one inlier correspondence.
+    fitness:         verification fitness of T: share of SRC points on REF surfaces (NaN
+                     without clouds).
+    footprint_fitness: the same share among the SRC points that land on REF's footprint, the
+                     measure of the verdict (pose/verify.py; NaN without clouds).
     refined:         True when T is the ICP refinement.
     timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
     pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp)."""
@@ -125,7 +125,9 @@ class Registration:
     inlier_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     inliers: int = 0
     inlier_ratio: float = 0.0
+    inlier_nodes: int = 0
     fitness: float = float("nan")
+    footprint_fitness: float = float("nan")
     refined: bool = False
     timing_ms: dict[str, float] = field(default_factory=dict)
     pose_timing_ms: dict[str, float] = field(default_factory=dict)
@@ -150,10 +152,16 @@ class Registration:
             "correspondences": self.correspondences,
             "inliers": int(self.inliers),
             "inlier_ratio": float(self.inlier_ratio),
-            "fitness": None if not np.isfinite(self.fitness) else float(self.fitness),
+            "inlier_nodes": int(self.inlier_nodes),
+            "fitness": _finite_or_none(self.fitness),
+            "footprint_fitness": _finite_or_none(self.footprint_fitness),
             "refined": bool(self.refined),
             "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
         }
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
 
 
 def node_cloud(graph: SceneGraph) -> np.ndarray:
@@ -174,13 +182,15 @@ def _add(timings: dict, stage: str, t0: float) -> None:
 
 
 def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: NodeFeatures,
-                      src_cloud: np.ndarray | None = None, ref_cloud: np.ndarray | None = None,
+                      src_cloud: np.ndarray | None = None,
+                      ref_cloud: np.ndarray | ReferenceCloud | None = None,
                       cfg: RegisterConfig | None = None,
                       timings: dict | None = None) -> Registration:
     """Match encoded graphs and estimate T (SRC -> REF). Dense mode needs dense features.
 
-    src_cloud / ref_cloud: verification clouds in each graph's frame (all node points);
-    without them success rests on inlier count and spread only. timings: stages already
+    src_cloud / ref_cloud: verification clouds in each graph's frame (all node points;
+    ref_cloud may be a prebuilt pose.ReferenceCloud); without them success rests on inlier
+    count and spread only. timings: stages already
     spent by the caller (graph, encoding) are kept and the matching / pose stages added;
     "total" is left to the caller when it passes timings in (it knows where it started)."""
     cfg = cfg or RegisterConfig()
@@ -194,9 +204,11 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         dm = model.match_dense(src_feats, ref_feats, timings)
         nodes = dm.nodes
         src_xyz, ref_xyz, weights = dm.points.src_xyz, dm.points.ref_xyz, dm.points.score
+        corr_node = np.asarray(dm.points.node_match, np.int64)
     else:
         nodes = model.match_coarse(src_feats, ref_feats, timings)
         src_xyz, ref_xyz, weights = nodes.src_xyz, nodes.ref_xyz, nodes.score
+        corr_node = np.arange(len(nodes))
     out.node_pairs = np.stack([np.asarray(src_feats.node_ids)[nodes.src_idx],
                                np.asarray(ref_feats.node_ids)[nodes.ref_idx]], 1).astype(np.int64)
     out.node_scores = np.asarray(nodes.score, np.float32)
@@ -207,26 +219,16 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         out.reason = "no_node_matches"
         return _finish(out, timings, t_start, own_total)
 
-    pose_cfg = cfg.pose_config()
-    # With ICP the verdict is taken on the better of the estimate and its refinement: a pose
-    # from node centers is decimetres off, and the clouds would turn away the raw pose of a
-    # pair that ICP aligns. The estimator is asked for its other checks only (min_fitness 0).
-    judge_refined = pose_cfg.icp and src_cloud is not None and ref_cloud is not None
     t0 = time.perf_counter()
     res = estimate_pose(out.src_xyz, out.ref_xyz, weights, src_cloud, ref_cloud,
-                        replace(pose_cfg, min_fitness=0.0) if judge_refined else pose_cfg)
+                        cfg.pose_config())
     _add(timings, "pose", t0)
-    out.success, out.reason = bool(res.success), res.reason
+    out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.inlier_mask = res.inlier_mask
     out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
+    out.inlier_nodes = int(np.unique(corr_node[res.inlier_mask]).size)
+    out.fitness, out.footprint_fitness = float(res.fitness), float(res.footprint_fitness)
     out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
-    # ICP can also slide into a wrong minimum (along a wall, across the floor): its pose
-    # replaces the estimate only when the clouds support it at least as well
-    out.refined = res.T_icp is not None and res.icp_fitness >= res.fitness
-    T, fitness = (res.T_icp, res.icp_fitness) if out.refined else (res.T, res.fitness)
-    out.T, out.fitness = T, float(fitness)
-    if judge_refined and out.success and not out.fitness >= pose_cfg.min_fitness:
-        out.success, out.reason = False, "verification_failed"
     return _finish(out, timings, t_start, own_total)
 
 

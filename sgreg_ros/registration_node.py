@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 import sys
 import time
+from dataclasses import replace
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
@@ -37,7 +38,7 @@ PARAMS = [
     Param("retry_backoff", 2.0, "each retry waits this factor longer", 1.0, 10.0),
     Param("max_retries", 3, "retries before giving up until the next interval", 0, 100),
     Param("keep_correspondences", True, "merge the last dense correspondences into coarse estimates"),
-    Param("min_fitness", 0.5, "after ICP, the fraction of the peer's points on own surfaces needed to verify", 0.05, 1.0),
+    Param("min_fitness", 0.6, "after ICP, the share of the peer's points over own footprint that must lie on own surfaces to verify", 0.05, 1.0),
     Param("max_nodes", 2000, "bigger graphs are refused", 10, 100000),
     Param("max_points", 500_000, "dense graphs with more points are refused", 1000, 50_000_000),
     Param("discovery_period_s", 2.0, "how often to look for new peers", 0.1, 60.0),
@@ -57,7 +58,8 @@ class RegistrationNode(Node):
             min_node_matches=p["min_node_matches"], min_coarse_matches=p["min_coarse_matches"],
             min_request_interval_s=p["min_request_interval_s"], request_timeout_s=p["request_timeout_s"],
             retry_backoff=p["retry_backoff"], max_retries=p["max_retries"],
-            keep_correspondences=p["keep_correspondences"], min_fitness=p["min_fitness"],
+            keep_correspondences=p["keep_correspondences"],
+            pose=replace(RegistrationConfig().pose, min_fitness=p["min_fitness"]),
             max_nodes=p["max_nodes"],
             max_points=p["max_points"])
         self.agent = AgentCore(agent_cfg, model)

@@ -1,16 +1,27 @@
 """Verification of a candidate pose on the voxelised clouds (the function g of paper section V).
 
-The reference cloud is voxelised once, its KD-tree and normals are built once, and every
-candidate is scored against them: a source point is supported when its transformed position
-has a reference neighbour within tau (point-to-point) and lies within tau/2 of that
-neighbour's tangent plane (point-to-plane). Fitness is the supported share of source points,
-the score a truncated (smooth) version of it used to rank candidates.
+The reference side (voxelised cloud, KD-tree, normals, footprint) is a `ReferenceCloud`, built
+once per map and reusable for any number of sources and candidates. A source point is
+supported when its transformed position has a reference neighbour within tau
+(point-to-point) and lies within tau/2 of that neighbour's tangent plane (point-to-plane).
+
+Plain fitness (supported share of all source points) is bounded by the overlap of the two
+views: a right pose of a 30 % overlap scores at most 0.3, while a wrong pose between two
+rooms still lays floor on floor and wall on wall. The verdict therefore uses the footprint
+fitness: the supported share of the source points that land on the reference's footprint
+(the floor plan it covers, a filled 2-D occupancy grid). Source points beyond what the
+reference saw are no evidence either way; source points inside it must be on its surfaces.
+Horizontal source surfaces (floor, ceiling, table tops; normal within ~30 degrees of vertical)
+are left out of every share: in gravity-aligned maps any yaw and horizontal shift keeps floor
+on floor, so they would support wrong poses as well as right ones. On held-out ScanNet views
+right poses then score 0.66-0.95, different rooms <= 0.21.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .. import geometry
@@ -21,19 +32,26 @@ from .solvers import apply_T
 class Verification:
     """fitness: share of source points supported (point-to-point and point-to-plane);
     overlap: share of source points with a reference point within tau (point-to-point only);
-    score: mean truncated point-to-plane score, in [0, 1]; rmse: point-to-point RMSE (m) of
-    the supported points (inf when none)."""
+    score: mean truncated point-to-plane score, in [0, 1], used to rank candidates;
+    rmse: point-to-point RMSE (m) of the supported points (inf when none);
+    footprint_share: share of source points that land on the reference's footprint;
+    footprint_fitness: share of those that are supported (0 when none land on it)."""
 
     fitness: float
     overlap: float
     score: float
     rmse: float
+    footprint_share: float
+    footprint_fitness: float
+
+
+FAILED = Verification(0.0, 0.0, 0.0, np.inf, 0.0, 0.0)
 
 
 def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
     """Centroid of the points in each occupied voxel (geometry.voxel_downsample, float64);
     non-finite points are dropped first."""
-    pts = np.asarray(pts, np.float64)
+    pts = np.asarray(pts, np.float64).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(1)]
     if voxel <= 0 or pts.shape[0] == 0:
         return pts
@@ -51,39 +69,92 @@ def estimate_normals(pts: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
     return vecs[:, :, 0]
 
 
-class CloudVerifier:
-    """Scores candidate transforms of `src` onto `ref`; build once, call per candidate.
+class Footprint:
+    """The floor plan a cloud covers: occupied cells of a horizontal grid, gaps between
+    nearby cells closed, enclosed holes (the free middle of a room) filled, one cell of
+    margin."""
 
-    voxel: voxel size (m) for both clouds; tau: support distance (m);
-    max_src_points: the source is randomly subsampled (seeded) beyond this many points.
+    def __init__(self, pts: np.ndarray, cell: float = 0.2):
+        self.cell = float(cell)
+        ij = np.floor(pts[:, :2] / self.cell).astype(np.int64)
+        pad = 4  # room for the closing and the margin at the border
+        self.origin = ij.min(0) - pad
+        ij -= self.origin
+        grid = np.zeros(ij.max(0) + 1 + pad, bool)
+        grid[ij[:, 0], ij[:, 1]] = True
+        grid = ndimage.binary_closing(grid, iterations=2)
+        grid = ndimage.binary_fill_holes(grid)
+        self.grid = ndimage.binary_dilation(grid, iterations=1)
+
+    def contains(self, pts: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points' horizontal positions fall on the footprint."""
+        ij = np.floor(pts[:, :2] / self.cell).astype(np.int64) - self.origin
+        inside = (ij >= 0).all(1) & (ij < np.array(self.grid.shape)).all(1)
+        out = np.zeros(pts.shape[0], bool)
+        out[inside] = self.grid[ij[inside, 0], ij[inside, 1]]
+        return out
+
+
+class ReferenceCloud:
+    """The reference side of verification and ICP, built once per map: the voxelised cloud,
+    its KD-tree, normals and footprint. `valid` is False with fewer than 3 finite points."""
+
+    def __init__(self, cloud: np.ndarray, voxel: float = 0.05, footprint_cell: float = 0.2):
+        self.voxel = float(voxel)
+        self.points = voxel_downsample(cloud, voxel)
+        self.valid = self.points.shape[0] >= 3
+        if self.valid:
+            self.tree = cKDTree(self.points)
+            self.normals = estimate_normals(self.points, self.tree)
+            self.footprint = Footprint(self.points, footprint_cell)
+
+
+HORIZONTAL_NZ = 0.85   # |normal z| above this: a horizontal surface (within ~32 degrees)
+
+
+class CloudVerifier:
+    """Scores candidate transforms of `src` onto a reference; build once, call per candidate.
+
+    ref: a ReferenceCloud (reused as is) or an (M, 3) cloud (voxelised here with `voxel`);
+    voxel: voxel size (m) of the source (and of a reference given as points); tau: support
+    distance (m); max_src_points: the source is randomly subsampled (seeded) beyond this.
+    `src` is the (subsampled) source used by ICP, `scored` its non-horizontal points.
     """
 
-    def __init__(self, src: np.ndarray, ref: np.ndarray, voxel: float = 0.05,
-                 tau: float = 0.1, max_src_points: int = 5000, seed: int = 0):
+    def __init__(self, src: np.ndarray, ref: ReferenceCloud | np.ndarray, voxel: float = 0.05,
+                 tau: float = 0.1, max_src_points: int = 5000, seed: int = 0,
+                 footprint_cell: float = 0.2):
         self.tau = float(tau)
+        self.reference = ref if isinstance(ref, ReferenceCloud) else \
+            ReferenceCloud(ref, voxel, footprint_cell)
         self.src = voxel_downsample(src, voxel)
         if self.src.shape[0] > max_src_points:
             pick = np.random.default_rng(seed).choice(self.src.shape[0], max_src_points,
                                                       replace=False)
             self.src = self.src[pick]
-        self.ref = voxel_downsample(ref, voxel)
-        self.valid = self.src.shape[0] >= 3 and self.ref.shape[0] >= 3
-        if self.valid:
-            self.tree = cKDTree(self.ref)
-            self.normals = estimate_normals(self.ref, self.tree)
+        self.scored = self.src
+        if self.src.shape[0] >= 3:
+            normals = estimate_normals(self.src, cKDTree(self.src))
+            self.scored = self.src[np.abs(normals[:, 2]) <= HORIZONTAL_NZ]
+        self.valid = self.scored.shape[0] >= 3 and self.reference.valid
 
     def __call__(self, T: np.ndarray) -> Verification:
         if not self.valid:
-            return Verification(0.0, 0.0, 0.0, np.inf)
-        moved = apply_T(T, self.src)
-        dist, nn = self.tree.query(moved, k=1, distance_upper_bound=self.tau)
+            return FAILED
+        ref = self.reference
+        moved = apply_T(T, self.scored)
+        dist, nn = ref.tree.query(moved, k=1, distance_upper_bound=self.tau)
         near = np.isfinite(dist)
         plane = np.zeros_like(dist)
-        plane[near] = np.abs(np.einsum("ij,ij->i", moved[near] - self.ref[nn[near]],
-                                       self.normals[nn[near]]))
+        plane[near] = np.abs(np.einsum("ij,ij->i", moved[near] - ref.points[nn[near]],
+                                       ref.normals[nn[near]]))
         half = 0.5 * self.tau
         supported = near & (plane <= half)
         score = np.where(near, np.clip(1.0 - (plane / half) ** 2, 0.0, None), 0.0)
         rmse = float(np.sqrt(np.mean(dist[supported] ** 2))) if supported.any() else np.inf
+        on_plan = ref.footprint.contains(moved)
         return Verification(fitness=float(supported.mean()), overlap=float(near.mean()),
-                            score=float(score.mean()), rmse=rmse)
+                            score=float(score.mean()), rmse=rmse,
+                            footprint_share=float(on_plan.mean()),
+                            footprint_fitness=float(supported[on_plan].mean()) if on_plan.any()
+                            else 0.0)

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..instance_map import validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
+from ..pose import PoseConfig, ReferenceCloud
 from ..scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 from .messages import GraphMessage
@@ -40,6 +41,7 @@ class AgentCore:
         self.map_sequence = 0
         self.stamp = 0.0
         self.timing_ms: dict = {}
+        self._reference: tuple[tuple, ReferenceCloud] | None = None
 
     def warm_up(self) -> None:
         """Load the text encoder now: its first use takes seconds, which would otherwise
@@ -105,3 +107,12 @@ class AgentCore:
     def own_cloud(self) -> np.ndarray:
         """Every (voxelised) node point of the own graph: the verification cloud."""
         return np.concatenate(self.graph.points).astype(np.float32)
+
+    def reference_cloud(self, pose: PoseConfig) -> ReferenceCloud:
+        """The own cloud prepared for verification and ICP (voxels, KD-tree, normals,
+        footprint), built once per map update: every peer's estimates reuse it."""
+        key = (id(self.graph), self.map_sequence, pose.verify_voxel, pose.footprint_cell)
+        if self._reference is None or self._reference[0] != key:
+            self._reference = key, ReferenceCloud(self.own_cloud(), pose.verify_voxel,
+                                                  pose.footprint_cell)
+        return self._reference[1]

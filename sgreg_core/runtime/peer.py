@@ -36,10 +36,9 @@ class RegistrationConfig:
     max_nodes / max_points: bigger messages are refused (oversized).
     keep_correspondences: keep the latest dense point correspondences and merge them with
         node-center matches when only coarse data arrives (the paper's scheme).
-    min_fitness: an accepted pose is refined by ICP (pose.icp) and verified only if at least
-        this fraction of the peer's points then lie on the agent's surfaces. On synthetic
-        multi-agent maps correct poses scored 0.50-0.90 and the one wrong pose the estimator
-        accepted scored 0.43."""
+    pose: the estimator, with ICP on: an estimate is verified only when, after ICP, at least
+        pose.min_fitness of the peer's points that land on the agent's footprint lie on its
+        surfaces (pose/verify.py)."""
 
     min_node_matches: int = 3
     min_request_interval_s: float = 5.0
@@ -51,7 +50,6 @@ class RegistrationConfig:
     max_nodes: int = 2000
     max_points: int = 500_000
     keep_correspondences: bool = True
-    min_fitness: float = 0.5
     pose: PoseConfig = field(default_factory=lambda: PoseConfig(icp=True))
 
 
@@ -256,27 +254,24 @@ class Registrar:
         # of the full cloud has no sampled partner and fitness would say nothing.
         res = estimate_pose(np.asarray(ref, np.float64), np.asarray(src, np.float64),
                             weights=np.asarray(score, np.float64), src_cloud=peer_cloud,
-                            ref_cloud=self.agent.own_cloud() if peer_cloud is not None else None,
+                            ref_cloud=self.agent.reference_cloud(self.cfg.pose)
+                            if peer_cloud is not None else None,
                             cfg=self.cfg.pose)
-        T_peer_own, fitness = np.asarray(res.T, np.float64), float(res.fitness)
-        if res.success and res.T_icp is not None:
-            T_peer_own, fitness = np.asarray(res.T_icp, np.float64), float(res.icp_fitness)
-        T = np.linalg.inv(T_peer_own)
+        T = np.linalg.inv(np.asarray(res.T, np.float64))
         timings["pose"] = 1e3 * (time.perf_counter() - t_pose)
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         if not res.success:
             reason = res.reason
         elif peer_cloud is None:
             reason = "no_peer_cloud_to_verify"
-        elif fitness < self.cfg.min_fitness:
-            reason = "low_fitness"
         else:
             reason = "ok"
         verified = reason == "ok"
+        confidence = float(res.footprint_fitness) if np.isfinite(res.footprint_fitness) else 0.0
         est = Estimate(peer_id=link.peer_id, T=T, verified=verified,
                        mode=mode, reason=reason, node_matches=node_matches,
                        correspondences=int(len(src)), inliers=int(res.inliers),
-                       inlier_ratio=float(res.inlier_ratio), confidence=fitness,
+                       inlier_ratio=float(res.inlier_ratio), confidence=confidence,
                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
                        peer_dense_sequence=dense_seq if dense_seq is not None else
                        (link.dense.sequence if link.dense else 0),

@@ -3,7 +3,8 @@ degenerate or unrelated inputs, 4-DoF mode, verification on clouds."""
 import numpy as np
 import pytest
 
-from sgreg_core.pose import PoseConfig, apply_T, estimate_pose, make_T, yaw_rotation
+from sgreg_core.pose import (PoseConfig, ReferenceCloud, apply_T, estimate_pose, make_T,
+                             yaw_rotation)
 
 ROOM = np.array([8.0, 6.0, 3.0])
 
@@ -110,14 +111,56 @@ def test_verification_on_clouds_accepts_true_and_rejects_wrong_pose():
                         cfg=PoseConfig(icp=True))
     dt, dr = pose_error(res.T, T)
     assert res.success and dt < 0.05 and dr < 1.0
-    assert res.fitness > 0.8
-    assert res.T_icp is not None and res.icp_fitness >= res.fitness - 0.05
-    dt, dr = pose_error(res.T_icp, T)
-    assert dt < 0.05 and dr < 1.0
+    assert res.fitness > 0.8 and res.footprint_fitness >= res.fitness
+    # T is the refinement only when ICP kept (or raised) the support of the estimate
+    assert pose_error(res.T_estimate, T)[0] < 0.05
+    if not res.refined:
+        np.testing.assert_array_equal(res.T, res.T_estimate)
     # Same correspondences, but the reference cloud is a different room: verification fails.
     other = box_room(np.random.default_rng(99), size=np.array([5.0, 4.0, 2.5]))
     bad = estimate_pose(src, ref, src_cloud=room, ref_cloud=apply_T(T, other))
     assert not bad.success and bad.reason == "verification_failed"
+
+
+def test_low_overlap_is_judged_on_the_reference_footprint():
+    """The reference saw only a third of the room: most of the source has nothing to land on,
+    so plain fitness is low, but every source point over the reference's floor plan is on its
+    surfaces, and that is what the verdict weighs. Pushed out beside the reference, the
+    same source proves nothing and is refused."""
+    rng = np.random.default_rng(21)
+    room = box_room(rng)
+    T = random_room_pose(rng)
+    seen = room[room[:, 0] < ROOM[0] / 3]
+    ref_cloud = apply_T(T, seen) + rng.normal(0, 0.005, seen.shape)
+    src, ref, _ = correspondences(rng, 300, 0.5, T)
+    inside = src[:, 0] < ROOM[0] / 3
+    src, ref = src[inside], ref[inside]
+    res = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=PoseConfig(icp=True))
+    assert res.success, res.reason
+    assert res.fitness < 0.5 <= res.footprint_fitness and res.footprint_share > 0.2
+    assert pose_error(res.T, T)[0] < 0.05
+    # the right pose by correspondences, but the clouds say the views lie side by side
+    beside = T @ make_T(np.eye(3), [ROOM[0] + 1.0, 0.0, 0.0])
+    shifted = estimate_pose(src, apply_T(beside @ np.linalg.inv(T), ref), src_cloud=room,
+                            ref_cloud=ref_cloud)
+    assert not shifted.success and shifted.reason == "verification_failed"
+    assert shifted.footprint_share < 0.2
+
+
+def test_prebuilt_reference_cloud_gives_the_same_verdict():
+    rng = np.random.default_rng(22)
+    room = box_room(rng)
+    T = random_room_pose(rng)
+    ref_cloud = apply_T(T, room)
+    src, ref, _ = correspondences(rng, 300, 0.7, T)
+    cfg = PoseConfig(icp=True)
+    a = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=cfg)
+    b = estimate_pose(src, ref, src_cloud=room,
+                      ref_cloud=ReferenceCloud(ref_cloud, cfg.verify_voxel, cfg.footprint_cell),
+                      cfg=cfg)
+    assert a.success and b.success
+    np.testing.assert_allclose(a.T, b.T, atol=1e-9)
+    assert a.footprint_fitness == pytest.approx(b.footprint_fitness)
 
 
 def test_4dof_mode():
