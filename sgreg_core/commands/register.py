@@ -1,4 +1,4 @@
-"""`sgreg register SRC_DIR REF_DIR [--json OUT] [--coarse] [--icp] [--png OUT] [--weights W]`:
+"""`sgreg register SRC_DIR REF_DIR [--json OUT] [--coarse] [--no-icp] [--png OUT] [--weights W]`:
 register two instance map directories with SG-Reg (sgreg_core.register).
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
@@ -22,8 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", dest="json_out", help="write the result here")
     parser.add_argument("--coarse", action="store_true",
                         help="node-center correspondences only (no point matching)")
-    parser.add_argument("--icp", action="store_true",
-                        help="refine an accepted dense pose with ICP too (coarse poses always are)")
+    parser.add_argument("--no-icp", action="store_true",
+                        help="judge the estimate as it is, without ICP refinement (by default "
+                             "the better supported of the estimate and its ICP refinement is)")
     parser.add_argument("--png", help="draw both clouds after registration (top view)")
     parser.add_argument("--weights", help="model .safetensors (default: the shipped model)")
     parser.add_argument("--threads", type=int, default=1,
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     startup_ms = 1e3 * (time.perf_counter() - t0)
 
     cfg = RegisterConfig(mode="coarse" if args.coarse else "dense",
-                         icp="always" if args.icp else "coarse")
+                         icp="never" if args.no_icp else "always")
     timings: dict = {}
     src_graph, ref_graph = build_graphs(src_map, ref_map, cfg, timings)
     reg = register_graphs(model, src_graph, ref_graph, cfg, timings)

@@ -3,8 +3,8 @@ degenerate or unrelated inputs, 4-DoF mode, verification on clouds."""
 import numpy as np
 import pytest
 
-from sgreg_core.pose import (PoseConfig, ReferenceCloud, apply_T, estimate_pose, make_T,
-                             yaw_rotation)
+from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
+                             make_T, yaw_rotation)
 
 ROOM = np.array([8.0, 6.0, 3.0])
 
@@ -145,6 +145,27 @@ def test_low_overlap_is_judged_on_the_reference_footprint():
                             ref_cloud=ref_cloud)
     assert not shifted.success and shifted.reason == "verification_failed"
     assert shifted.footprint_share < 0.2
+
+
+def test_floor_on_floor_is_no_evidence():
+    """Two scenes share a big floor but their furniture stands elsewhere: the floor would make
+    any pose look supported, so horizontal surfaces are left out of the scores."""
+    rng = np.random.default_rng(23)
+    floor = np.c_[rng.uniform(0, 6, (6000, 2)), np.zeros(6000)]
+
+    def cabinet(x, y):   # the four sides of a 1 x 0.6 x 1.2 m box, as a scanner sees them
+        p = rng.uniform([0, 0, 0], [1.0, 0.6, 1.2], (1500, 3))
+        side = rng.integers(0, 4, 1500)
+        p[side == 0, 0], p[side == 1, 0] = 0.0, 1.0
+        p[side == 2, 1], p[side == 3, 1] = 0.0, 0.6
+        return p + [x, y, 0.0]
+
+    here = np.concatenate([floor, cabinet(1.0, 1.0)])
+    there = np.concatenate([floor, cabinet(4.0, 4.0)])
+    same = CloudVerifier(here, here, voxel=0.05)(np.eye(4))
+    other = CloudVerifier(here, there, voxel=0.05)(np.eye(4))
+    assert same.footprint_fitness > 0.9
+    assert other.footprint_fitness < 0.2   # the floor alone would have given ~0.8
 
 
 def test_prebuilt_reference_cloud_gives_the_same_verdict():
