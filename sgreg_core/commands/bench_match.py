@@ -21,7 +21,8 @@ COLUMNS = [("node_recall", "node R", "{:.3f}"), ("node_precision", "node P", "{:
            ("inlier_ratio", "inlier", "{:.3f}"), ("node_matches", "n.match", "{:.1f}"),
            ("point_matches", "p.match", "{:.0f}"), ("ms_text", "text", "{:.1f}"),
            ("ms_shape", "shape", "{:.1f}"), ("ms_gnn", "gnn", "{:.1f}"),
-           ("ms_node_match", "n.mt", "{:.2f}"), ("ms_point_match", "p.mt", "{:.1f}")]
+           ("ms_node_match", "n.mt", "{:.2f}"), ("ms_point_match", "p.mt", "{:.1f}"),
+           ("ms_coarse_path", "coarse", "{:.1f}")]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,10 +58,11 @@ def run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
+    import numpy as np
     import torch
 
     from ..net.config import apply_overrides, to_dict
-    from ..net.dataset import DataConfig, PairSource
+    from ..net.dataset import DataConfig, PairSource, augment
     from ..net.evaluate import evaluate_pairs, summarize
     from ..net.model import DEFAULT_WEIGHTS, load_model
     from ..net.text import TextEncoder
@@ -93,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         for cond, cfg in conditions.items():
             source = PairSource(cfg, "val", args.seed)
-            pairs[cond] = [source.pair(k) for k in range(len(source))]
+            # each pair seen from its own random 4-DoF frames (yaw in [-180, 180)), seeded
+            pairs[cond] = [augment(source.pair(k), np.random.default_rng([args.seed, k]))
+                           for k in range(len(source))]
     except (FileNotFoundError, RuntimeError) as exc:
         print(f"sgreg bench-match: {exc}", file=sys.stderr)
         return 2
@@ -127,4 +131,5 @@ def _print_table(results: list[dict]) -> None:
         s = r["summary"]
         cells = "".join(f"{fmt.format(s.get(key, float('nan'))):>9}" for key, _, fmt in COLUMNS)
         print(f"{r['model']:<{width}}{r['condition']:<7}{s['pairs']:>6}{cells}")
-    print("times: ms per graph (text, shape, gnn) and per pair (node / point match), medians")
+    print("times: ms per graph (text, shape, gnn) and per pair (node / point match), medians; "
+          "coarse: text + gnn + node match (the coarse path)")
