@@ -76,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"T (SRC -> REF):\n{np.asarray(reg.T)}")
     verdict = "registered" if reg.success else f"NOT registered ({reg.reason})"
     print(f"{verdict}: {reg.mode}, {reg.node_matches} node matches, {reg.correspondences} "
-          f"correspondences, {reg.inliers} inliers, fitness {reg.fitness:.3f}, "
+          f"correspondences, {reg.inliers} inliers over {reg.inlier_nodes} node matches, "
+          f"fitness {reg.fitness:.3f} (on the reference footprint {reg.footprint_fitness:.3f}), "
           f"{reg.timing_ms['total']:.0f} ms (+ {startup_ms:.0f} ms loading the model)")
     if args.json_out:
         out = Path(args.json_out)
