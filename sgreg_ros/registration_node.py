@@ -106,6 +106,7 @@ class RegistrationNode(Node):
                 return
             self.agent.update_map(convert.instance_map_from_msg(msg), int(msg.sequence),
                                   convert.stamp_to_sec(msg.header.stamp))
+            self.registrar.prepare_own_map()
             self.last_map_seq = msg.sequence
         except (convert.ConversionError, AgentInputError) as exc:
             self.registrar.counters["bad_instance_map"] += 1

@@ -38,7 +38,7 @@ class RegistrationConfig:
         node-center matches when only coarse data arrives (the paper's scheme).
     pose: the estimator, with ICP on: an estimate is verified only when, after ICP, at least
         pose.min_fitness of the peer's points that land on the agent's footprint lie on its
-        surfaces (pose/verify.py)."""
+        surfaces (pose/verify.py). Verification on a 10 cm grid, as `sgreg register`."""
 
     min_node_matches: int = 3
     min_request_interval_s: float = 5.0
@@ -50,7 +50,7 @@ class RegistrationConfig:
     max_nodes: int = 2000
     max_points: int = 500_000
     keep_correspondences: bool = True
-    pose: PoseConfig = field(default_factory=lambda: PoseConfig(icp=True))
+    pose: PoseConfig = field(default_factory=lambda: PoseConfig(icp=True, verify_voxel=0.1))
 
 
 @dataclass
@@ -95,6 +95,12 @@ class Registrar:
         self._said: set = set()
 
     # ---- inputs --------------------------------------------------------------------------
+    def prepare_own_map(self) -> None:
+        """Build the own map's reference cloud (voxels, KD-tree, normals, footprint) now, once
+        per map update, so that no estimate waits for it."""
+        if self.agent.ready:
+            self.agent.reference_cloud(self.cfg.pose)
+
     def on_coarse(self, msg: GraphMessage, now: float) -> tuple[Estimate | None, DenseRequestMessage | None]:
         if msg.agent_id == self.agent.cfg.name:
             return None, None

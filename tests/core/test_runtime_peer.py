@@ -132,3 +132,12 @@ def test_own_messages_are_ignored(model, graphs):
     a, _, reg, _ = make_agents(model, graphs)
     assert reg.on_coarse(a.coarse_message(1), now=0.0) == (None, None)
     assert not reg.peers
+
+
+def test_own_reference_cloud_is_built_once_per_map(model, graphs):
+    a, _, reg, _ = make_agents(model, graphs)
+    reg.prepare_own_map()
+    first = a.reference_cloud(reg.cfg.pose)
+    assert first.valid and a.reference_cloud(reg.cfg.pose) is first
+    a.set_graph(graphs[0], 2, 1.0)   # a new map: a new reference
+    assert a.reference_cloud(reg.cfg.pose) is not first
