@@ -44,8 +44,9 @@ def compatibility(resid: np.ndarray, delta: float,
     bounds: optional (N,) per-correspondence noise bounds; a pair's threshold never falls below
     b_i + b_j (the triangle-inequality limit for two inliers with those bounds).
     """
-    thr = delta if bounds is None else np.maximum(delta, bounds[:, None] + bounds[None, :])
-    adj = resid < thr
+    adj = resid < delta
+    if bounds is not None:
+        adj |= resid < bounds[:, None] + bounds[None, :]
     np.fill_diagonal(adj, False)
     return adj
 
@@ -56,32 +57,38 @@ def _degrees(adj: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return np.count_nonzero(adj[rows][:, cols], axis=1)
 
 
-def _greedy_clique(adj: np.ndarray) -> np.ndarray:
-    """Grow a clique by repeatedly taking the candidate with most neighbours among candidates."""
+def _greedy_clique(adj: np.ndarray, degree: np.ndarray) -> np.ndarray:
+    """Grow a clique by repeatedly taking the candidate with most neighbours among candidates.
+    degree: every vertex's degree; it is kept as the degree among the remaining candidates by
+    subtracting the rows of the vertices each step drops (O(n^2) in all, not per step)."""
     cand = np.ones(adj.shape[0], bool)
+    deg = degree.copy()
     clique = []
     while cand.any():
         idx = np.flatnonzero(cand)
-        deg = _degrees(adj, idx, idx)
-        if deg.min() == idx.size - 1:
+        if deg[idx].min() == idx.size - 1:
             # The candidates already form a clique: take them all at once.
             clique.extend(idx.tolist())
             break
-        v = idx[int(np.argmax(deg))]
+        v = idx[int(np.argmax(deg[idx]))]
         clique.append(v)
+        dropped = np.flatnonzero(cand & ~adj[v])   # v itself and its non-neighbours
         cand &= adj[v]
+        deg -= np.count_nonzero(adj[dropped], axis=0)
     return np.asarray(clique, dtype=np.int64)
 
 
-def _core(adj: np.ndarray, k: int) -> np.ndarray:
-    """Mask of the k-core (peel every vertex of degree < k per round)."""
+def _core(adj: np.ndarray, k: int, degree: np.ndarray) -> np.ndarray:
+    """Mask of the k-core: peel every vertex of degree < k per round; the degrees are updated
+    by the rows of the peeled vertices only."""
     alive = np.ones(adj.shape[0], bool)
+    deg = degree.copy()
     while True:
-        idx = np.flatnonzero(alive)
-        low = idx[_degrees(adj, idx, idx) < k]
+        low = np.flatnonzero(alive & (deg < k))
         if low.size == 0:
             return alive
         alive[low] = False
+        deg -= np.count_nonzero(adj[low], axis=0)
 
 
 def _reduce(adj: np.ndarray, alive: np.ndarray) -> tuple[list[int], np.ndarray]:
@@ -124,9 +131,10 @@ def max_clique(adj: np.ndarray, max_exact_vertices: int = 60) -> tuple[np.ndarra
     n = adj.shape[0]
     if n == 0:
         return np.zeros(0, np.int64), True, 0
-    best = _greedy_clique(adj)
+    degree = np.count_nonzero(adj, axis=1)
+    best = _greedy_clique(adj, degree)
     # A clique larger than the greedy one needs every member to have >= len(best) neighbours.
-    alive = _core(adj, best.size)
+    alive = _core(adj, best.size, degree)
     if not alive.any():
         return np.sort(best), True, 0
     forced, kernel = _reduce(adj, alive)
@@ -154,8 +162,14 @@ def clique_pyramid(src: np.ndarray, ref: np.ndarray, deltas: tuple[float, ...],
                    max_exact_vertices: int = 60) -> list[CliqueResult]:
     """One maximum clique per compatibility level, the pairwise residuals computed once."""
     resid = length_residuals(src, ref)
+    # pairs within their own bounds are compatible at every level: one mask for all levels
+    floor = compatibility(resid, 0.0, bounds) if bounds is not None else None
     out = []
     for delta in deltas:
-        idx, exact, k = max_clique(compatibility(resid, delta, bounds), max_exact_vertices)
+        adj = resid < delta
+        if floor is not None:
+            adj |= floor
+        np.fill_diagonal(adj, False)
+        idx, exact, k = max_clique(adj, max_exact_vertices)
         out.append(CliqueResult(indices=idx, exact=exact, delta=float(delta), kernel=k))
     return out
