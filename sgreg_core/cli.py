@@ -21,6 +21,7 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("bench-match", "bench_match", "benchmark node/point matching with ablations"),
     ("register", "register", "register two instance maps (prints T, writes JSON)"),
     ("bench-register", "bench_register", "benchmark registration against Open3D and KISS-Matcher"),
+    ("bench-pose", "bench_pose", "time the robust estimator and its clique pyramid on synthetic correspondences"),
     ("make-bag", "make_bag", "simulate two agents in a scan and write a rosbag2 (MCAP)"),
     ("play", "play", "publish a recorded bag with its original timing"),
     ("record", "record", "record live topics into a rosbag2 (MCAP)"),

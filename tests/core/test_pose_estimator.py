@@ -1,8 +1,11 @@
 """End-to-end behaviour of sgreg_core.pose.estimate_pose: accuracy under outliers, verdicts on
 degenerate or unrelated inputs, 4-DoF mode, verification on clouds."""
+import json
+
 import numpy as np
 import pytest
 
+from sgreg_core.cli import main
 from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
                              make_T, yaw_rotation)
 
@@ -245,3 +248,14 @@ def test_weights_and_noise_bounds_are_validated_and_used():
     assert not estimate_pose(src, ref, weights=w).success
     res = estimate_pose(src, ref, noise_bounds=np.full(300, 0.05))
     assert res.success and pose_error(res.T, T)[0] < 0.05
+
+
+def test_bench_pose_cli(tmp_path, capsys):
+    out = tmp_path / "pose.json"
+    assert main(["bench-pose", "--n", "200", "--outliers", "0.5", "0.9", "--trials", "2",
+                 "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["outlier_ratio"] for r in rows] == [0.5, 0.9]
+    assert all(r["success_rate"] == 1.0 and r["rte_m_median"] < 0.05 for r in rows)
+    assert "clique ms" in capsys.readouterr().out
+    assert main(["bench-pose", "--outliers", "1.5", "--out", str(out)]) == 2
