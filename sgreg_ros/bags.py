@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
@@ -63,12 +64,14 @@ class PlayReport:
 
 def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
              log=print, should_stop=lambda: False, delay: float = 1.0,
-             wait_subscribers: float = 0.0) -> PlayReport:
+             wait_subscribers: float = 0.0, flush_timeout: float = 2.0) -> PlayReport:
     """Publish a bag's messages with their recorded timing (scaled by 1/rate) from `node`.
 
     `delay` seconds pass between creating the publishers and the first message, so that
     subscribers (a recorder discovers topics only once they exist) can match them; with
     `wait_subscribers` > 0, play first waits up to that long until every topic has a subscriber.
+    At the end it waits up to `flush_timeout` seconds until reliable subscribers acknowledged
+    everything.
     Each message is checked by deserialising it first; one that does not decode is reported
     and skipped, and the rest of the bag plays on."""
     if rate <= 0:
@@ -103,6 +106,9 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
             pubs[conn.topic].publish(bytes(raw))
             report.published += 1
             report.per_topic[conn.topic] = report.per_topic.get(conn.topic, 0) + 1
+        # a reliable message still in flight dies with the process: wait for the readers' acks
+        for pub in pubs.values():
+            pub.wait_for_all_acked(Duration(seconds=flush_timeout))
     finally:
         reader.close()
     return report
