@@ -163,13 +163,9 @@ def clique_pyramid(src: np.ndarray, ref: np.ndarray, deltas: tuple[float, ...],
     """One maximum clique per compatibility level, the pairwise residuals computed once."""
     resid = length_residuals(src, ref)
     # pairs within their own bounds are compatible at every level: one mask for all levels
-    floor = compatibility(resid, 0.0, bounds) if bounds is not None else None
+    floor = compatibility(resid, 0.0, bounds) if bounds is not None else False
     out = []
     for delta in deltas:
-        adj = resid < delta
-        if floor is not None:
-            adj |= floor
-        np.fill_diagonal(adj, False)
-        idx, exact, k = max_clique(adj, max_exact_vertices)
+        idx, exact, k = max_clique(compatibility(resid, delta) | floor, max_exact_vertices)
         out.append(CliqueResult(indices=idx, exact=exact, delta=float(delta), kernel=k))
     return out

@@ -261,7 +261,8 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
 
     have_clouds = src_cloud is not None and ref_cloud is not None
     verifier = _verifier(src_cloud, ref_cloud, cfg) if have_clouds else None
-    inlier_counts = [int((residuals(T, s, r) <= bk).sum()) for T in candidates]
+    inlier_masks = [residuals(T, s, r) <= bk for T in candidates]
+    inlier_counts = [int(m.sum()) for m in inlier_masks]
     if verifier is not None and verifier.valid:
         checks = [verifier(T) for T in candidates]
         # Rank by verification, inlier count breaks ties.
@@ -272,8 +273,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         ver = None
     clock.lap("verify")
 
-    T = candidates[best]
-    inl = residuals(T, s, r) <= bk
+    T, inl = candidates[best], inlier_masks[best]
     result.T = result.T_estimate = T
     result.candidates = len(candidates)
     result.inliers = int(inl.sum())
