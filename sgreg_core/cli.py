@@ -28,6 +28,7 @@ COMMANDS: list[tuple[str, str, str]] = [
     ("bw", "bw", "per-topic bandwidth of live topics or of a bag"),
     ("agents", "agents", "start agent + registration nodes for N agents on this machine"),
     ("replay", "replay", "replay a two-agent bag through real nodes and score every estimate"),
+    ("bench-replay", "bench_replay", "make and replay a suite of two-agent bags; success, wrong verified, time to success"),
 ]
 
 

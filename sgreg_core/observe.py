@@ -7,7 +7,7 @@ Public API:
     observe_sequence(imap, times, poses, cfg) -> list[(t, InstanceMap)]
         the accumulated map after each period (instances appear partially and grow)
     TrajectoryConfig, make_trajectory(imap, rng, cfg) -> (times (T,), poses (T, 3) x, y, yaw)
-        a walk across the free space of the scene (shortest path between two far free cells)
+        a walk across the free space of the scene: shortest paths through far-apart free cells
     reverse_trajectory(times, poses) -> (times, poses)     the same path walked the other way
 
 Poses are (T, 3) arrays (x, y, yaw) or (T, 4, 4) camera-to-world transforms whose +x axis
@@ -39,7 +39,11 @@ class SensorConfig:
 @dataclass
 class TrajectoryConfig:
     cell: float = 0.1          # m, free-space grid
-    clearance: float = 0.3     # m, distance kept from obstacles
+    clearance: float = 0.3     # m, distance kept from obstacles (real rooms are cluttered: 0.15)
+    waypoints: int = 2         # far-apart free cells visited in turn (2: one crossing)
+    start: tuple[float, float] | None = None   # scene x, y of the first waypoint; None: seeded
+    random_start: bool = False  # seeded first waypoint: any free cell (walks differ from seed
+                                # to seed) instead of the far end of the free space
     speed: float = 0.5         # m/s
     rate: float = 5.0          # poses per second
     look_around_deg: float = 25.0   # amplitude of a slow yaw sweep about the heading
@@ -109,7 +113,11 @@ def _free_grid(imap: InstanceMap, cfg: TrajectoryConfig):
 
 
 def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: TrajectoryConfig | None = None):
-    """Walk between two far-apart free cells along the shortest grid path."""
+    """Walk through far-apart free cells along shortest grid paths. The first waypoint is the
+    free cell nearest cfg.start, a random free cell (cfg.random_start), or the one farthest
+    from a random free cell; each next one is
+    the free cell farthest from all waypoints so far (farthest-point order), so two waypoints
+    cross the scene and more of them tour it."""
     cfg = cfg or TrajectoryConfig()
     free, lo = _free_grid(imap, cfg)
     cells = np.argwhere(free)
@@ -126,15 +134,32 @@ def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: Trajectory
         cols.append(j[k])
         w.append(np.full(k.sum(), np.hypot(dx, dy)))
     g = coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(len(cells),) * 2).tocsr()
-    start = int(rng.integers(len(cells)))
-    d = dijkstra(g, directed=False, indices=start)
-    a = int(np.argmax(np.where(np.isfinite(d), d, -1)))       # farthest from a random cell
-    d, pred = dijkstra(g, directed=False, indices=a, return_predecessors=True)
-    b = int(np.argmax(np.where(np.isfinite(d), d, -1)))       # and the farthest from that
-    path = [b]
-    while path[-1] != a:
-        path.append(int(pred[path[-1]]))
-    xy = (cells[path[::-1]] + 0.5) * cfg.cell + lo
+
+    def farthest(d):
+        return int(np.argmax(np.where(np.isfinite(d), d, -1)))
+
+    if cfg.start is not None:
+        centers = (cells + 0.5) * cfg.cell + lo
+        first = int(np.argmin(np.linalg.norm(centers - np.asarray(cfg.start, np.float64), axis=1)))
+    elif cfg.random_start:
+        first = int(rng.integers(len(cells)))
+    else:
+        first = farthest(dijkstra(g, directed=False, indices=int(rng.integers(len(cells)))))
+    stops = [first]
+    d, pred = dijkstra(g, directed=False, indices=first, return_predecessors=True)
+    nearest = d.copy()   # distance to the nearest waypoint so far
+    legs = []
+    for _ in range(max(cfg.waypoints, 2) - 1):
+        nxt = farthest(nearest)
+        leg = [nxt]
+        while leg[-1] != stops[-1]:
+            leg.append(int(pred[leg[-1]]))
+        legs.append(leg[::-1][1:] if legs else leg[::-1])
+        stops.append(nxt)
+        d, pred = dijkstra(g, directed=False, indices=nxt, return_predecessors=True)
+        nearest = np.minimum(nearest, d)
+    path = np.concatenate(legs)
+    xy = (cells[path] + 0.5) * cfg.cell + lo
     # resample at constant speed after smoothing the staircase of grid steps
     xy = ndimage.uniform_filter1d(xy, size=5, axis=0, mode="nearest")
     seg = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]

@@ -42,3 +42,60 @@ def plot_replay(score, timeline, out_path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(out_path, dpi=110)
     plt.close(fig)
+
+
+def plot_suite(summary: dict, out_path) -> None:
+    """A replay suite at a glance: success over registrable frames per bag (wrong verified
+    marked), the reliability of the stated confidence, and time to first success per bag."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bags = summary["bags"]
+    names = list(bags)
+    fig, axes = plt.subplots(1, 3, figsize=(16, max(4.5, 0.17 * len(names) + 1.5)),
+                             gridspec_kw={"width_ratios": [2.2, 1.3, 1.3]})
+    y = np.arange(len(names))
+    rate = np.array([np.nan if bags[n]["success_rate_registrable"] is None
+                     else 100 * bags[n]["success_rate_registrable"] for n in names])
+    wrong = np.array([bags[n]["wrong_verified"] for n in names])
+    axes[0].barh(y, np.nan_to_num(rate), color=np.where(wrong > 0, "tab:red", "tab:green"))
+    for i in np.flatnonzero(wrong):
+        axes[0].text(2, y[i], f"{wrong[i]} wrong verified", va="center", fontsize=7, color="white")
+    axes[0].set_yticks(y, names, fontsize=6)
+    axes[0].invert_yaxis()
+    axes[0].axvline(85, color="gray", ls="--", lw=1)
+    axes[0].set_xlim(0, 100)
+    axes[0].set_xlabel("success over registrable frames [%]")
+    overall = summary["rows"]["all"]
+    axes[0].set_title(f"suite {summary['suite']}: {100 * (overall['success_rate_registrable'] or 0):.1f} % "
+                      f"of {overall['registrable_frames']} frames, {overall['wrong_verified']} wrong verified",
+                      fontsize=9)
+
+    rel = summary.get("reliability")
+    if rel:
+        pts = [(b["confidence"], b["correct"], b["n"]) for b in rel["bins"] if b["n"]]
+        if pts:
+            c, o, n = (np.array(v, np.float64) for v in zip(*pts))
+            axes[1].scatter(c, o, s=10 + 60 * n / n.max(), color="tab:blue", zorder=3)
+            axes[1].plot(c, o, color="tab:blue", lw=1)
+        axes[1].plot([0, 1], [0, 1], color="gray", ls="--", lw=1)
+        axes[1].set_xlim(0, 1)
+        axes[1].set_ylim(0, 1)
+        axes[1].set_xlabel("stated confidence")
+        axes[1].set_ylabel("observed share of correct estimates")
+        axes[1].set_title(f"reliability (ECE {rel['ece']:.3f}, {rel['n']} estimates)", fontsize=9)
+
+    t = np.array([np.nan if bags[n]["median_time_to_success_s"] is None
+                  else bags[n]["median_time_to_success_s"] for n in names])
+    axes[2].barh(y, np.nan_to_num(t), color="tab:purple")
+    for i in np.flatnonzero(~np.isfinite(t)):
+        axes[2].text(0.1, y[i], "never", va="center", fontsize=6)
+    axes[2].set_yticks(y, [])
+    axes[2].invert_yaxis()
+    axes[2].axvline(5, color="gray", ls="--", lw=1)
+    axes[2].set_xlabel("time from first registrable frame to first success [s]")
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)

@@ -1,25 +1,30 @@
 """The registration pipeline: two scene graphs (or their encoded features) -> a verified T.
 
 One pipeline for every caller (the `sgreg register` CLI, `sgreg bench-register`, the ROS
-registration node), so that what is benchmarked is what runs.
+registration node through runtime/peer.py), so that what is benchmarked is what runs.
 
     dense:  encode both graphs -> node matches (dual softmax) -> point matches (Sinkhorn)
             -> estimate_pose on the point correspondences
     coarse: node matches -> estimate_pose on the matched node centers only
+    merged: coarse, plus correspondences kept from an earlier dense estimate (the paper's
+            scheme for query frames that bring only a coarse message)
 
-Either way the verification clouds are all node points of each graph (what a dense message
-carries), so even a coarse estimate is checked against geometry when the clouds are at hand.
-Node centers of partly seen objects move with what was seen, so coarse mode has its own
-PoseConfig with a wider inlier bound and ICP reach. By default every estimate that passes the
-correspondence checks is refined by ICP on the verification clouds, and the estimator's verdict
-is taken on the better supported of the estimate and its refinement (pose/estimator.py).
+Every correspondence carries the node match (object pair) it comes from, so the verdict counts
+distinct inlier objects, not points. The verification clouds are all node points of each graph
+(what a dense message carries), so even a coarse estimate is checked against geometry when the
+clouds are at hand. Node centers of partly seen objects move with what was seen, so coarse and
+merged modes have their own PoseConfig with a wider inlier bound and ICP reach. By default
+every estimate that passes the correspondence checks is refined by ICP on the verification
+clouds, and the verdict (pose/verdict.py: evidence, ambiguity, confidence) is taken on the
+better supported of the estimate and its refinement.
 
 Public API:
     RegisterConfig                 graph, dense / coarse PoseConfig, mode, icp, min_nodes
-    Registration                   T (SRC -> REF), verdict, matches, correspondences, timings
+    Correspondences                point pairs with the node pair each comes from
+    Registration                   T (SRC -> REF), verdict, confidence, matches, timings
     register_graphs(model, src_graph, ref_graph, cfg, timings=None) -> Registration
     build_graphs(src_map, ref_map, cfg, timings) -> (src_graph, ref_graph)   ("graph" stage)
-    register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings)
+    register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings, kept)
     node_cloud(graph) -> (N, 3)    all node points of a graph (the verification cloud)
     warm_up(model)                 load the text encoder now, so that no timing includes it
     TIMING_STAGES                  the keys of Registration.timing_ms, in pipeline order
@@ -33,10 +38,11 @@ import numpy as np
 
 from .net.model import NodeFeatures, SGRegModel
 from .pose import PoseConfig, ReferenceCloud, estimate_pose
+from .pose.verdict import Evidence, VerdictConfig
 from .scene_graph import GraphConfig, build_scene_graph
 from .types import InstanceMap, SceneGraph
 
-MODES = ("dense", "coarse")
+MODES = ("dense", "coarse")   # what RegisterConfig.mode asks for; "merged" = coarse + kept
 ICP_MODES = ("never", "coarse", "always")
 # graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
 # (label embeddings, node point sampling, shape + point features, GNN); node_match /
@@ -56,7 +62,7 @@ def _coarse_pose() -> PoseConfig:
     """Node centers of partial objects are off by decimetres: wider bound, fewer inliers, and
     an ICP reach that covers the error of a pose from centers. Verification and ICP on 600
     source points keep a coarse estimate near 20 ms with the same recall as on 1500."""
-    return PoseConfig(noise_bound=0.3, nms_radius=0.0, min_inliers=4,
+    return PoseConfig(noise_bound=0.3, nms_radius=0.0, verdict=VerdictConfig(min_inliers=4, min_objects=4),
                       clique_deltas=(0.2, 0.4, 0.8), verify_voxel=0.1, icp_distance=0.2,
                       verify_max_points=600, icp_max_iters=15)
 
@@ -66,7 +72,8 @@ class RegisterConfig:
     """graph:       scene-graph construction (only used when starting from instance maps).
     pose:           estimator settings of dense mode (point correspondences).
     coarse_pose:    estimator settings of coarse mode (node-center correspondences).
-    mode:           "dense" (points) or "coarse" (node centers only).
+    mode:           "dense" (points) or "coarse" (node centers only, merged with kept
+                    correspondences when the caller has some).
     icp:            when the estimate is refined with point-to-plane ICP on the
                     verification clouds before the verdict: "never", "coarse" (coarse mode
                     only) or "always" (default: even centimetre-accurate point matches leave
@@ -91,6 +98,44 @@ class RegisterConfig:
         icp = self.icp == "always" or (self.icp == "coarse" and self.mode == "coarse")
         return replace(self.pose if self.mode == "dense" else self.coarse_pose, icp=icp)
 
+    def with_verdict(self, **changes) -> "RegisterConfig":
+        """The same config with verdict settings (pose/verdict.VerdictConfig) changed in both
+        the dense and the coarse pose configs."""
+        return replace(self, pose=replace(self.pose, verdict=replace(self.pose.verdict, **changes)),
+                       coarse_pose=replace(self.coarse_pose,
+                                           verdict=replace(self.coarse_pose.verdict, **changes)))
+
+
+@dataclass
+class Correspondences:
+    """Point pairs for the estimator: src_xyz / ref_xyz (c, 3) float64 in each graph's frame,
+    score (c,) confidence, pairs (c, 2) int64 the (src node id, ref node id) of the node match
+    each comes from."""
+
+    src_xyz: np.ndarray
+    ref_xyz: np.ndarray
+    score: np.ndarray
+    pairs: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.score.shape[0])
+
+    def subset(self, mask: np.ndarray) -> "Correspondences":
+        return Correspondences(self.src_xyz[mask], self.ref_xyz[mask], self.score[mask],
+                               self.pairs[mask])
+
+    @staticmethod
+    def concat(a: "Correspondences", b: "Correspondences") -> "Correspondences":
+        return Correspondences(*(np.concatenate([x, y]) for x, y in
+                                 ((a.src_xyz, b.src_xyz), (a.ref_xyz, b.ref_xyz),
+                                  (a.score, b.score), (a.pairs, b.pairs))))
+
+    def groups(self) -> np.ndarray:
+        """(c,) one integer per distinct node pair."""
+        if len(self) == 0:
+            return np.zeros(0, np.int64)
+        return np.unique(self.pairs, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
 
 @dataclass
 class Registration:
@@ -99,15 +144,19 @@ class Registration:
     T:               (4, 4) float64 mapping SRC points into REF's frame (ICP-refined when
                      RegisterConfig.icp asks for it and ICP kept the fitness); identity when
                      nothing was estimated.
-    success:         True only when the pose estimator accepted the estimate.
-    reason:          "ok", "too_few_nodes", "no_node_matches" or the estimator's reason.
-    mode:            "dense" or "coarse".
+    success:         True only when the verdict accepted the estimate.
+    reason:          "ok", "too_few_nodes", "no_node_matches" or the estimator's reason
+                     (pose/verdict.py REASONS).
+    confidence:      P(T right | evidence) in [0, 1] (pose/verdict.py), 0 without estimate.
+    evidence:        what the verdict was taken on (pose.verdict.Evidence).
+    mode:            "dense", "coarse" or "merged".
     node_pairs:      (m, 2) int64 matched (src node id, ref node id); node_scores (m,).
-    src_xyz, ref_xyz: (c, 3) the correspondences handed to the estimator (points in dense
-                     mode, node centers in coarse mode), SRC and REF frames.
+    corr:            the Correspondences handed to the estimator (points in dense mode, node
+                     centers in coarse mode, plus the kept ones in merged mode).
     inlier_mask:     (c,) bool, inliers of the estimator's pose (before any ICP).
     inliers, inlier_ratio: their count and share.
     inlier_nodes:    node matches with at least one inlier correspondence.
+    T_competitor:    the best competing hypothesis the verdict weighed (None: none found).
     fitness:         verification fitness of T: share of SRC points on REF surfaces (NaN
                      without clouds).
     footprint_fitness: the same share among the SRC points that land on REF's footprint, the
@@ -119,15 +168,18 @@ class Registration:
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
     success: bool = False
     reason: str = "too_few_nodes"
+    confidence: float = 0.0
+    evidence: Evidence = field(default_factory=Evidence)
     mode: str = "dense"
     node_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     node_scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    src_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    ref_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    corr: Correspondences = field(default_factory=lambda: Correspondences(
+        np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64)))
     inlier_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     inliers: int = 0
     inlier_ratio: float = 0.0
     inlier_nodes: int = 0
+    T_competitor: np.ndarray | None = None
     fitness: float = float("nan")
     footprint_fitness: float = float("nan")
     refined: bool = False
@@ -140,7 +192,11 @@ class Registration:
 
     @property
     def correspondences(self) -> int:
-        return int(self.src_xyz.shape[0])
+        return len(self.corr)
+
+    def inlier_corr(self) -> Correspondences:
+        """The correspondences the estimate explains (what a runtime keeps for merging)."""
+        return self.corr.subset(self.inlier_mask)
 
     def to_json(self) -> dict:
         """The result JSON of DESIGN.md section 3 (+ reason, mode, counts, node pairs)."""
@@ -148,6 +204,7 @@ class Registration:
             "T": np.asarray(self.T, np.float64).tolist(),
             "success": bool(self.success),
             "reason": self.reason,
+            "confidence": float(self.confidence),
             "mode": self.mode,
             "node_matches": self.node_matches,
             "node_pairs": self.node_pairs.tolist(),
@@ -158,6 +215,10 @@ class Registration:
             "fitness": _finite_or_none(self.fitness),
             "footprint_fitness": _finite_or_none(self.footprint_fitness),
             "refined": bool(self.refined),
+            "evidence": {k: _finite_or_none(v) if isinstance(v, float) else v
+                         for k, v in vars(self.evidence).items()},
+            "T_competitor": None if self.T_competitor is None else
+            np.asarray(self.T_competitor, np.float64).tolist(),
             "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
         }
 
@@ -187,14 +248,16 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
                       src_cloud: np.ndarray | None = None,
                       ref_cloud: np.ndarray | ReferenceCloud | None = None,
                       cfg: RegisterConfig | None = None,
-                      timings: dict | None = None) -> Registration:
+                      timings: dict | None = None,
+                      kept: Correspondences | None = None) -> Registration:
     """Match encoded graphs and estimate T (SRC -> REF). Dense mode needs dense features.
 
     src_cloud / ref_cloud: verification clouds in each graph's frame (all node points;
-    ref_cloud may be a prebuilt pose.ReferenceCloud); without them success rests on inlier
-    count and spread only. timings: stages already
-    spent by the caller (graph, encoding) are kept and the matching / pose stages added;
-    "total" is left to the caller when it passes timings in (it knows where it started)."""
+    ref_cloud may be a prebuilt pose.ReferenceCloud); without them the verdict rests on the
+    correspondences only. timings: stages already spent by the caller (graph, encoding) are
+    kept and the matching / pose stages added; "total" is left to the caller when it passes
+    timings in (it knows where it started). kept: coarse mode only, correspondences from an
+    earlier dense estimate merged with the node centers (mode "merged")."""
     cfg = cfg or RegisterConfig()
     t_start = time.perf_counter()
     own_total = timings is None
@@ -202,33 +265,41 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     out = Registration(mode=cfg.mode, timing_ms=timings)
     if min(src_feats.num_nodes, ref_feats.num_nodes) < cfg.min_nodes:
         return _finish(out, timings, t_start, own_total)
+    src_ids, ref_ids = np.asarray(src_feats.node_ids), np.asarray(ref_feats.node_ids)
     if cfg.mode == "dense":
         dm = model.match_dense(src_feats, ref_feats, timings)
-        nodes = dm.nodes
-        src_xyz, ref_xyz, weights = dm.points.src_xyz, dm.points.ref_xyz, dm.points.score
-        corr_node = np.asarray(dm.points.node_match, np.int64)
+        nodes, pts = dm.nodes, dm.points
+        pair_idx = np.asarray(pts.node_match, np.int64)
+        corr = Correspondences(np.asarray(pts.src_xyz, np.float64), np.asarray(pts.ref_xyz, np.float64),
+                               np.asarray(pts.score, np.float64),
+                               np.stack([src_ids[nodes.src_idx[pair_idx]],
+                                         ref_ids[nodes.ref_idx[pair_idx]]], 1).astype(np.int64))
     else:
         nodes = model.match_coarse(src_feats, ref_feats, timings)
-        src_xyz, ref_xyz, weights = nodes.src_xyz, nodes.ref_xyz, nodes.score
-        corr_node = np.arange(len(nodes))
-    out.node_pairs = np.stack([np.asarray(src_feats.node_ids)[nodes.src_idx],
-                               np.asarray(ref_feats.node_ids)[nodes.ref_idx]], 1).astype(np.int64)
+        corr = Correspondences(np.asarray(nodes.src_xyz, np.float64), np.asarray(nodes.ref_xyz, np.float64),
+                               np.asarray(nodes.score, np.float64),
+                               np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64))
+        if kept is not None and len(kept):
+            corr = Correspondences.concat(corr, kept)
+            out.mode = "merged"
+    out.node_pairs = np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64)
     out.node_scores = np.asarray(nodes.score, np.float32)
-    out.src_xyz = np.asarray(src_xyz, np.float64).reshape(-1, 3)
-    out.ref_xyz = np.asarray(ref_xyz, np.float64).reshape(-1, 3)
-    out.inlier_mask = np.zeros(out.correspondences, bool)
-    if len(nodes) == 0:
+    out.corr = corr
+    out.inlier_mask = np.zeros(len(corr), bool)
+    if len(corr) == 0:
         out.reason = "no_node_matches"
         return _finish(out, timings, t_start, own_total)
 
     t0 = time.perf_counter()
-    res = estimate_pose(out.src_xyz, out.ref_xyz, weights, src_cloud, ref_cloud,
-                        cfg.pose_config())
+    groups = corr.groups()
+    res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
+                        cfg.pose_config(), groups=groups)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
+    out.confidence, out.evidence, out.T_competitor = res.confidence, res.evidence, res.T_competitor
     out.inlier_mask = res.inlier_mask
     out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
-    out.inlier_nodes = int(np.unique(corr_node[res.inlier_mask]).size)
+    out.inlier_nodes = int(np.unique(groups[res.inlier_mask]).size)
     out.fitness, out.footprint_fitness = float(res.fitness), float(res.footprint_fitness)
     out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
     return _finish(out, timings, t_start, own_total)

@@ -39,17 +39,15 @@ class AgentNode(Node):
         p = declare_and_read(self, PARAMS)
         self.name = agent_name_from(self, p["agent_name"])
         self.encoding = ENCODINGS[p["feature_encoding"]]
-        self.dense_interval = p["dense_min_interval_s"]
         cfg = AgentConfig(name=self.name, min_nodes=p["min_nodes"],
                           max_points_in_map=p["max_points_in_map"],
+                          dense_min_interval_s=p["dense_min_interval_s"],
                           graph=GraphConfig(voxel_size=p["voxel_size"]))
         self.core = AgentCore(cfg, load_model(p["weights_path"] or None))
         self.core.warm_up()
         self.counters: dict[str, int] = {}
         self.coarse_seq = 0
-        self.dense_seq = 0
         self.last_map_seq: int | None = None
-        self.last_answer: dict[str, float] = {}
         self.coarse_pub = self.create_publisher(CoarseGraph, "sgreg/coarse", qos.COARSE)
         self.dense_pub = self.create_publisher(DenseGraph, "sgreg/dense", qos.DENSE)
         self.create_subscription(InstanceMap, "mapping/instances", self.on_instances, qos.INSTANCES, raw=True)
@@ -91,7 +89,7 @@ class AgentNode(Node):
         summary = (f"map {self.core.map_sequence}: {self.core.graph.num_nodes} nodes" if self.core.ready
                    else "waiting for the first instance map")
         stamp = self.get_clock().now().nanoseconds * 1e-9
-        counters = {**self.counters, "coarse_sent": self.coarse_seq, "dense_sent": self.dense_seq}
+        counters = {**self.counters, "coarse_sent": self.coarse_seq, "dense_sent": self.core.dense_sent}
         self.diag_pub.publish(convert.diagnostics_msg(f"sgreg agent {self.name}", self.name, counters, stamp, summary))
 
     def on_request(self, raw: bytes) -> None:
@@ -99,20 +97,9 @@ class AgentNode(Node):
             req = convert.request_from_msg(convert.decode(raw, DenseRequest))
         except convert.ConversionError as exc:
             return self.count("malformed_message", f"dense request refused: {exc}")
-        if req.to_agent != self.name:
-            return self.count("request_not_for_me", f"dense request for '{req.to_agent}' on {self.name}'s topic; ignored")
-        if req.weights_id != self.core.weights_id:
-            return self.count("request_other_weights", f"dense request from {req.from_agent} runs weights "
-                              f"{req.weights_id}, this agent {self.core.weights_id}; not answered")
-        if not self.core.ready:
-            return self.count("request_before_map", f"dense request from {req.from_agent} before any map; not answered")
-        now = time.monotonic()
-        if now - self.last_answer.get(req.from_agent, -1e9) < self.dense_interval:
-            return self.count("request_rate_limited", f"dense request {req.sequence} from {req.from_agent} "
-                              f"within {self.dense_interval} s of the last answer; not answered")
-        self.last_answer[req.from_agent] = now
-        self.dense_seq += 1
-        dense = self.core.dense_message(self.dense_seq, req.node_ids, req.from_agent, req.sequence)
+        dense, counter, why = self.core.answer_request(req, time.monotonic())
+        if dense is None:
+            return self.count(counter, why)
         self.dense_pub.publish(convert.dense_to_msg(dense, self.encoding))
 
 

@@ -57,9 +57,13 @@ def open_bag(path: str | Path) -> Reader:
 
 @dataclass
 class PlayReport:
+    """published / corrupted / per_topic: what was played; clock: (monotonic s, bag s) at the
+    first message, so that any later moment maps to bag time (scaled by the rate)."""
+
     published: int = 0
     corrupted: list = field(default_factory=list)   # (topic, index, error)
     per_topic: dict = field(default_factory=dict)
+    clock: tuple[float, float] | None = None
 
 
 def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
@@ -93,7 +97,9 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
         for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
             if should_stop():
                 break
-            t0_bag = t_ns if t0_bag is None else t0_bag
+            if t0_bag is None:
+                t0_bag = t_ns
+                report.clock = (t0_wall, t_ns * 1e-9)
             wait = t0_wall + (t_ns - t0_bag) * 1e-9 / rate - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
@@ -155,3 +161,26 @@ def spin_for(node, duration: float) -> None:
             rclpy.spin_once(node, timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+
+
+def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
+    """Every */mapping/instances message of a bag as (bag time - t_origin in s, agent id,
+    sgreg_core InstanceMap), in bag order; for offline replays. Undecodable messages are
+    skipped, as `play_bag` skips them."""
+    from sgreg_msgs.msg import InstanceMap
+
+    from .convert import ConversionError, instance_map_from_msg
+
+    reader = open_bag(path)
+    out = []
+    try:
+        conns = [c for c in reader.connections if c.topic.endswith("/mapping/instances")]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            try:
+                imap = instance_map_from_msg(deserialize_message(bytes(raw), InstanceMap))
+            except (ConversionError, Exception):
+                continue
+            out.append((t_ns * 1e-9 - t_origin, conn.topic.split("/")[1], imap))
+    finally:
+        reader.close()
+    return out

@@ -191,10 +191,12 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     msg.header.frame_id = f"{e.peer_id}/map"
     msg.agent_id, msg.peer_id, msg.sequence = agent_id, e.peer_id, int(sequence)
     msg.transform = transform_msg(e.T, agent_id, e.peer_id, stamp)
-    msg.verified, msg.mode, msg.reason = bool(e.verified), e.mode, e.reason
+    msg.verified, msg.mode, msg.reason, msg.link = bool(e.verified), e.mode, e.reason, e.link
     msg.node_matches, msg.correspondences, msg.inliers = (
         int(e.node_matches), int(e.correspondences), int(e.inliers))
     msg.inlier_ratio, msg.confidence = float(e.inlier_ratio), float(e.confidence)
+    msg.inlier_objects, msg.ambiguity = int(e.inlier_objects), float(e.ambiguity)
+    msg.fitness = float(e.fitness) if np.isfinite(e.fitness) else 0.0
     msg.peer_coarse_sequence, msg.peer_dense_sequence = (
         int(e.peer_coarse_sequence), int(e.peer_dense_sequence))
     msg.timing_names = list(e.timing_ms)

@@ -9,8 +9,6 @@ from __future__ import annotations
 import re
 import sys
 import time
-from dataclasses import replace
-
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from rclpy.node import Node
@@ -38,7 +36,7 @@ PARAMS = [
     Param("retry_backoff", 2.0, "each retry waits this factor longer", 1.0, 10.0),
     Param("max_retries", 3, "retries before giving up until the next interval", 0, 100),
     Param("keep_correspondences", True, "merge the last dense correspondences into coarse estimates"),
-    Param("min_fitness", 0.6, "after ICP, the share of the peer's points over own footprint that must lie on own surfaces to verify", 0.05, 1.0),
+    Param("min_fitness", 0.7, "after ICP, the share of the peer's points over own footprint that must lie on own surfaces to verify", 0.05, 1.0),
     Param("max_nodes", 2000, "bigger graphs are refused", 10, 100000),
     Param("max_points", 500_000, "dense graphs with more points are refused", 1000, 50_000_000),
     Param("discovery_period_s", 2.0, "how often to look for new peers", 0.1, 60.0),
@@ -59,7 +57,7 @@ class RegistrationNode(Node):
             min_request_interval_s=p["min_request_interval_s"], request_timeout_s=p["request_timeout_s"],
             retry_backoff=p["retry_backoff"], max_retries=p["max_retries"],
             keep_correspondences=p["keep_correspondences"],
-            pose=replace(RegistrationConfig().pose, min_fitness=p["min_fitness"]),
+            register=RegistrationConfig().register.with_verdict(min_fitness=p["min_fitness"]),
             max_nodes=p["max_nodes"],
             max_points=p["max_points"])
         self.agent = AgentCore(agent_cfg, model)
@@ -141,7 +139,7 @@ class RegistrationNode(Node):
             self.send_request(request)
 
     def publish_diagnostics(self) -> None:
-        verified = {p: link.last_verified is not None for p, link in self.registrar.peers.items()}
+        verified = {p: link.confirmed is not None for p, link in self.registrar.peers.items()}
         summary = ", ".join(f"{p}: {'registered' if v else 'not registered'}" for p, v in verified.items()) or "no peers yet"
         self.diag_pub.publish(convert.diagnostics_msg(f"sgreg registration {self.name}", self.name,
                                                       dict(self.registrar.counters), self.now(), summary))

@@ -115,7 +115,11 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         records.append(ResultRecord(t=time.monotonic() - t0, agent=msg.agent_id, peer=msg.peer_id,
                                     T=transform_from_msg(msg.transform), verified=msg.verified,
                                     mode=msg.mode, reason=msg.reason, node_matches=msg.node_matches,
-                                    inliers=msg.inliers, total_ms=float(timing.get("total", 0.0))))
+                                    inliers=msg.inliers, total_ms=float(timing.get("total", 0.0)),
+                                    confidence=float(msg.confidence),
+                                    evidence={"objects": int(msg.inlier_objects),
+                                              "fitness": float(msg.fitness),
+                                              "ambiguity": float(msg.ambiguity)}))
 
     def on_bytes(topic, raw):
         t = time.monotonic() - t0
@@ -188,6 +192,13 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         node.destroy_node()
         rclpy.try_shutdown()
     report = play_result.get("report")
+    if report is not None and report.clock is not None:
+        # bag seconds (after the bag's t_origin, as its ground truth counts them) of each frame
+        gt_path = Path(bag) / "ground_truth.json"
+        origin = json.loads(gt_path.read_text()).get("t_origin", 0.0) if gt_path.exists() else 0.0
+        wall0, bag0 = report.clock
+        for r in records:
+            r.bag_t = bag0 - origin + (t0 + r.t - wall0) * cfg.rate
     return ReplayRun(records=records, bandwidth=meter.report(span=duration),
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,

@@ -102,12 +102,13 @@ def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
                correspondences=reg.correspondences, inliers=reg.inliers,
                inlier_nodes=reg.inlier_nodes,
                fitness=reg.fitness, footprint_fitness=reg.footprint_fitness,
+               confidence=reg.confidence, ambiguity=reg.evidence.ambiguity,
                # share of the correspondences that are right (before pose estimation)
-               inlier_ratio=(inlier_ratio(reg.src_xyz, reg.ref_xyz, case.T_gt, cfg.inlier_threshold)
+               inlier_ratio=(inlier_ratio(reg.corr.src_xyz, reg.corr.ref_xyz, case.T_gt, cfg.inlier_threshold)
                              if has_gt and reg.correspondences else nan),
                # share of what the estimator kept as inliers that is right
-               pseudo_inlier_ratio=(inlier_ratio(reg.src_xyz[reg.inlier_mask],
-                                                 reg.ref_xyz[reg.inlier_mask], case.T_gt,
+               pseudo_inlier_ratio=(inlier_ratio(reg.corr.src_xyz[reg.inlier_mask],
+                                                 reg.corr.ref_xyz[reg.inlier_mask], case.T_gt,
                                                  cfg.inlier_threshold)
                                     if has_gt and reg.inlier_mask.any() else nan))
     row.update({f"ms_{k}": float(v) for k, v in reg.timing_ms.items()})

@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{verdict}: {reg.mode}, {reg.node_matches} node matches, {reg.correspondences} "
           f"correspondences, {reg.inliers} inliers over {reg.inlier_nodes} node matches, "
           f"fitness {reg.fitness:.3f} (on the reference footprint {reg.footprint_fitness:.3f}), "
+          f"ambiguity {reg.evidence.ambiguity:.2f}, confidence {reg.confidence:.2f}, "
           f"{reg.timing_ms['total']:.0f} ms (+ {startup_ms:.0f} ms loading the model)")
     if args.json_out:
         out = Path(args.json_out)

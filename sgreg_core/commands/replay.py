@@ -24,6 +24,45 @@ def add_arguments(p):
                    help="kill that agent's nodes that long into the replay and restart them")
 
 
+def replay_report(bag, score, run_=None, config: dict | None = None) -> dict:
+    """The JSON report of one replay: the score (every frame, registrability, links) and, from a
+    replay through real nodes (run_), traffic, node load and played messages."""
+    report = {
+        "bag": str(bag),
+        "query_frames": score.query_frames,
+        "success_rate": score.success_rate,
+        "success_rate_any": score.success_rate_any,
+        "paper_success_rate": PAPER_SUCCESS_RATE,
+        "registrable_frames": score.registrable_frames,
+        "success_rate_registrable": score.success_rate_registrable,
+        "wrong_verified": score.wrong_verified,
+        "verified": score.verified,
+        "first_success_s": score.first_success_s,
+        "links": score.links,
+        "median_rte_verified_m": score.median_rte_verified,
+        "median_rre_verified_deg": score.median_rre_verified,
+        "kb_per_query_frame": None,
+        "paper_kb_per_query_frame": PAPER_KB_PER_FRAME,
+        "coarse_latency_ms": score.coarse_latency_ms,
+        "dense_latency_ms": score.dense_latency_ms,
+        "config": config or {},
+        "frames": score.to_dict()["frames"],
+    }
+    if run_ is not None:
+        cross_bytes = sum(run_.bytes_per_topic.values())
+        report.update({
+            "kb_per_query_frame": cross_bytes / 1e3 / score.query_frames if score.query_frames else None,
+            "bytes_per_topic": run_.bytes_per_topic,
+            "bandwidth": [vars(b) for b in run_.bandwidth],
+            "nodes": run_.processes,
+            "messages_played": run_.played,
+            "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
+            "duration_s": run_.duration_s,
+            "events": [{"t": t, "what": w} for t, w in run_.events],
+        })
+    return report
+
+
 def _fmt_T(T) -> str:
     return "\n".join("  [" + "  ".join(f"{v:8.3f}" for v in row) + "]" for row in T)
 
@@ -59,36 +98,10 @@ def run(args) -> int:
     except (BagError, RuntimeError) as exc:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
-    score = score_replay(run_.records, gt["T_scene_map"])
-    cross_bytes = sum(run_.bytes_per_topic.values())
-    kb_per_frame = cross_bytes / 1e3 / score.query_frames if score.query_frames else None
-    report = {
-        "bag": str(args.bag),
-        "query_frames": score.query_frames,
-        "success_rate": score.success_rate,
-        "success_rate_any": score.success_rate_any,
-        "paper_success_rate": PAPER_SUCCESS_RATE,
-        "wrong_verified": score.wrong_verified,
-        "verified": score.verified,
-        "first_success_s": score.first_success_s,
-        "median_rte_verified_m": score.median_rte_verified,
-        "median_rre_verified_deg": score.median_rre_verified,
-        "kb_per_query_frame": kb_per_frame,
-        "paper_kb_per_query_frame": PAPER_KB_PER_FRAME,
-        "coarse_latency_ms": score.coarse_latency_ms,
-        "dense_latency_ms": score.dense_latency_ms,
-        "bytes_per_topic": run_.bytes_per_topic,
-        "bandwidth": [vars(b) for b in run_.bandwidth],
-        "nodes": run_.processes,
-        "messages_played": run_.played,
-        "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
-        "duration_s": run_.duration_s,
-        "events": [{"t": t, "what": w} for t, w in run_.events],
-        "config": {"rate": cfg.rate, "params_file": cfg.params_file, "overrides": cfg.overrides},
-        "frames": score.to_dict()["frames"],
-    }
-    for f in report["frames"]:
-        f.pop("T", None)
+    score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
+    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
+                                                   "overrides": cfg.overrides})
+    kb_per_frame = report["kb_per_query_frame"]
     out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
 
     print()
@@ -98,6 +111,8 @@ def run(args) -> int:
         ["query frames", str(score.query_frames)],
         ["success rate (verified, RTE<0.5 m, RRE<5 deg)", f"{score.success_rate:.1%}  (paper: {PAPER_SUCCESS_RATE:.1%}, other data)"],
         ["success rate (any estimate)", f"{score.success_rate_any:.1%}"],
+        ["success rate over registrable frames", f"{score.success_rate_registrable:.1%} of {score.registrable_frames}"
+         if score.success_rate_registrable is not None else "-"],
         ["verified estimates / wrong verified", f"{score.verified} / {score.wrong_verified}"],
         ["first success", f"{score.first_success_s:.1f} s" if score.first_success_s is not None else "never"],
         ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],

@@ -3,8 +3,8 @@
 Pipeline (paper section V, after G3Reg): NMS -> GNC-TLS over all correspondences -> if its
 inlier ratio is low, one maximum clique per level of a compatibility-graph pyramid, a GNC
 candidate per clique -> the verification on the clouds picks the best candidate -> optional ICP
-of the winner -> success only when the better supported of the winner and its refinement is
-well supported (footprint fitness, see verify.py).
+of the winner -> the best competing hypothesis far from the winner -> the verdict and a
+confidence on the evidence gathered (pose/verdict.py).
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from .clique import clique_pyramid
 from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
 from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
+from .verdict import Evidence, VerdictConfig, confidence, judge, support
 from .verify import CloudVerifier, ReferenceCloud, Verification
 
 
@@ -34,26 +35,15 @@ class PoseConfig:
     clique_deltas:       m, compatibility bounds of the pyramid levels, one clique per level.
     max_exact_vertices:  largest reduced kernel handed to the exact clique solver.
     min_correspondences: fewer (after NMS) gives reason "too_few_correspondences".
-    min_inliers:         success needs at least this many inliers; random correspondences
-                         between unrelated scans rarely agree on more than ~5.
-    min_inlier_spread:   m, success needs the inliers' second principal standard deviation
-                         (horizontal spread for dof=4) to reach this: inliers on one line or
-                         in one spot (one small object) do not fix a room-scale pose.
     verify_voxel:        m, voxel of the clouds used for verification (and ICP).
     verify_tau:          m, support distance of the verification.
     footprint_cell:      m, grid cell of the reference footprint (verify.Footprint).
-    min_fitness:         success needs this share of the source points that land on the
-                         reference's footprint to be supported (footprint fitness, horizontal
-                         surfaces left out). Right poses of held-out ScanNet views scored
-                         0.66-0.95 and different rooms <= 0.21; synthetic rooms, all alike,
-                         let one wrong pose reach 0.55. Ignored when no clouds are given.
-    min_footprint_share: success needs this share of the source points on the reference's
-                         footprint: a pose that puts the views side by side proves nothing.
     verify_max_points:   source points kept for verification (seeded random subsample).
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
     icp_max_iters:       ICP iterations.
     icp_distance:        m, ICP correspondence distance.
+    verdict:             what an estimate needs to be accepted (pose/verdict.py).
     gnc:                 GNC-TLS settings (its dof is overridden by `dof`).
     seed:                seed of every random choice.
     """
@@ -65,17 +55,14 @@ class PoseConfig:
     clique_deltas: tuple[float, ...] = (0.1, 0.2, 0.4)
     max_exact_vertices: int = 60
     min_correspondences: int = 3
-    min_inliers: int = 8
-    min_inlier_spread: float = 0.2
     verify_voxel: float = 0.05
     verify_tau: float = 0.1
     footprint_cell: float = 0.2
-    min_fitness: float = 0.6
-    min_footprint_share: float = 0.2
     verify_max_points: int = 1500
     icp: bool = False
     icp_max_iters: int = 20
     icp_distance: float = 0.1
+    verdict: VerdictConfig = field(default_factory=VerdictConfig)
     gnc: GncConfig = field(default_factory=GncConfig)
     seed: int = 0
 
@@ -88,17 +75,21 @@ class PoseResult:
                          the ICP refinement when `refined`.
     T_estimate:          the estimator's own pose, before any ICP.
     refined:             True when T is the ICP refinement of T_estimate.
-    success:             True only when the estimate is well supported (see PoseConfig).
-    reason:              "ok", "invalid_input", "too_few_correspondences",
-                         "degenerate_geometry", "too_few_inliers", "verification_failed".
+    success:             True only when the verdict accepts the estimate.
+    reason:              "ok", "invalid_input", "too_few_correspondences" or the verdict's
+                         reason (verdict.REASONS).
+    confidence:          P(T right | evidence) in [0, 1] (verdict.confidence).
+    evidence:            what the verdict was taken on (verdict.Evidence).
     inliers:             correspondences with residual <= noise bound under T_estimate.
     inlier_ratio:        inliers / num_correspondences.
     inlier_mask:         (N,) bool over the input correspondences.
+    inlier_groups:       the distinct groups (node matches) of the inliers.
     num_correspondences: correspondences left after dropping non-finite ones and NMS.
     candidates:          candidate poses compared.
     used_pyramid:        True when GNC's inlier ratio was below the gate.
     clique_sizes:        maximum-clique size per pyramid level (empty without pyramid).
-    spread:              m, inlier spread used by the success rule.
+    spread:              m, inlier spread used by the verdict.
+    T_competitor:        the best competing hypothesis (None when there was none).
     fitness, overlap, verify_score, rmse, footprint_share, footprint_fitness: the
                          `Verification` of T (NaN without clouds).
     timing_ms:           milliseconds per step and "total".
@@ -109,14 +100,18 @@ class PoseResult:
     refined: bool = False
     success: bool = False
     reason: str = "invalid_input"
+    confidence: float = 0.0
+    evidence: Evidence = field(default_factory=Evidence)
     inliers: int = 0
     inlier_ratio: float = 0.0
     inlier_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    inlier_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     num_correspondences: int = 0
     candidates: int = 0
     used_pyramid: bool = False
     clique_sizes: list[int] = field(default_factory=list)
     spread: float = 0.0
+    T_competitor: np.ndarray | None = None
     fitness: float = float("nan")
     overlap: float = float("nan")
     verify_score: float = float("nan")
@@ -201,17 +196,97 @@ def _icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
     return T
 
 
+def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult,
+                clock: _Clock) -> list[np.ndarray]:
+    """GNC over all correspondences, and when its inlier ratio is low one GNC fit per clique of
+    the compatibility pyramid (each re-fitted on everything it calls an inlier)."""
+    gnc = gnc_tls(s, r, b, w, gcfg)
+    clock.lap("gnc")
+    if not gnc.ok:
+        result.reason = gnc.reason
+        return []
+    candidates = [gnc.T]
+    if gnc.inlier_ratio < cfg.gnc_inlier_gate:
+        result.used_pyramid = True
+        levels = clique_pyramid(s, r, cfg.clique_deltas, b, cfg.max_exact_vertices)
+        clock.lap("clique")
+        result.clique_sizes = [int(lv.indices.size) for lv in levels]
+        for lv in levels:
+            idx = lv.indices
+            if idx.size < 3:
+                continue
+            # Clique members agree pairwise within delta, so their residuals reach ~delta/2.
+            cb = np.maximum(b[idx], 0.5 * lv.delta)
+            cand = gnc_tls(s[idx], r[idx], cb, w[idx], gcfg)
+            if cand.ok:
+                candidates.append(_refine(s, r, w, b, cand.T, cfg.dof))
+        clock.lap("candidates")
+    return candidates
+
+
+def _far(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig) -> bool:
+    """T differs from T_ref by at least the competitor distance (translation or rotation)."""
+    d = np.linalg.inv(T_ref) @ T
+    angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    return bool(np.linalg.norm(d[:3, 3]) >= cfg.competitor_m or angle >= cfg.competitor_deg)
+
+
+def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcfg: GncConfig):
+    """Hypotheses far from the winner, best supported first (inlier objects, then inliers):
+    the other candidates and what GNC (or, when its inlier ratio is low, GNC over one maximum
+    clique) finds in the correspondences the winner leaves unexplained."""
+    pool = [T for T in candidates if _far(T, T_win, cfg.verdict)]
+    rest = np.flatnonzero(~inl_win)
+    if rest.size >= 3:
+        gnc = gnc_tls(s[rest], r[rest], b[rest], w[rest], gcfg)
+        if gnc.ok:
+            pool.append(gnc.T)
+            if gnc.inlier_ratio < cfg.gnc_inlier_gate and len(cfg.clique_deltas):
+                delta = cfg.clique_deltas[len(cfg.clique_deltas) // 2]
+                lv = clique_pyramid(s[rest], r[rest], (delta,), b[rest], cfg.max_exact_vertices)[0]
+                if lv.indices.size >= 3:
+                    idx = rest[lv.indices]
+                    cand = gnc_tls(s[idx], r[idx], np.maximum(b[idx], 0.5 * delta), w[idx], gcfg)
+                    if cand.ok:
+                        pool.append(_refine(s, r, w, b, cand.T, cfg.dof))
+    scored = []
+    for T in pool:
+        if _far(T, T_win, cfg.verdict):
+            inl = residuals(T, s, r) <= b
+            scored.append((int(np.unique(g[inl]).size), int(inl.sum()), T))
+    scored.sort(key=lambda x: x[:2], reverse=True)
+    return [T for *_, T in scored]
+
+
+def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
+    """The first competing hypothesis that stays far from the winner once ICP has refined it
+    (one that ICP brings back to the winner is the winner, seen from a worse start). Returns
+    (T, inlier objects, footprint fitness) or None."""
+    for T in hypotheses[:2]:
+        fitness = float("nan")
+        if verifier is not None and verifier.valid:
+            T = _icp(verifier, T, cfg) if cfg.icp else T
+            if not _far(T, T_win, cfg.verdict):
+                continue
+            fitness = verifier(T).footprint_fitness
+        inl = residuals(T, s, r) <= b
+        return T, int(np.unique(g[inl]).size), fitness
+    return None
+
+
 def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None,
-                  cfg: PoseConfig = PoseConfig(), noise_bounds=None) -> PoseResult:
-    """Estimate T with ref ~ T src from correspondences (src_pts[i], ref_pts[i]); never raises
-    on bad data.
+                  cfg: PoseConfig = PoseConfig(), noise_bounds=None, groups=None) -> PoseResult:
+    """Estimate T with ref ~ T src from correspondences (src_pts[i], ref_pts[i]) and judge it;
+    never raises on bad data.
 
     weights:      optional (N,) confidences (NMS ranking and weighted fits); default 1.
     src_cloud, ref_cloud: optional (M, 3) clouds for verification (and ICP); ref_cloud may
                   be a prebuilt ReferenceCloud (built once per map, with cfg.verify_voxel);
-                  without clouds success rests on the inlier count and spread only.
+                  without clouds the verdict rests on the correspondences only.
     noise_bounds: optional (N,) per-correspondence inlier bounds (m), e.g. from node-center
                   covariances; default cfg.noise_bound for all.
+    groups:       optional (N,) int, the object (node match) of each correspondence: the
+                  verdict counts distinct inlier objects; default each its own.
     """
     clock = _Clock()
     src, ref = _as_points(src_pts), _as_points(ref_pts)
@@ -220,7 +295,8 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     n_in = src.shape[0]
     w = _per_corr(1.0 if weights is None else weights, n_in)
     b = _per_corr(cfg.noise_bound if noise_bounds is None else noise_bounds, n_in)
-    if w is None or b is None:
+    g = np.arange(n_in) if groups is None else np.asarray(groups).reshape(-1)
+    if w is None or b is None or g.shape != (n_in,):
         return PoseResult(reason="invalid_input", inlier_mask=np.zeros(n_in, bool),
                           timing_ms=clock.done())
     finite = (np.isfinite(src).all(1) & np.isfinite(ref).all(1) & np.isfinite(w) & (w >= 0)
@@ -233,31 +309,12 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     if keep.size < cfg.min_correspondences:
         result.timing_ms = clock.done()
         return result
-    s, r, wk, bk = src[keep], ref[keep], w[keep], b[keep]
+    s, r, wk, bk, gk = src[keep], ref[keep], w[keep], b[keep], g[keep]
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
-
-    gnc = gnc_tls(s, r, bk, wk, gcfg)
-    clock.lap("gnc")
-    if not gnc.ok:
-        result.reason = gnc.reason
+    candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock)
+    if not candidates:
         result.timing_ms = clock.done()
         return result
-    candidates = [gnc.T]
-    if gnc.inlier_ratio < cfg.gnc_inlier_gate:
-        result.used_pyramid = True
-        levels = clique_pyramid(s, r, cfg.clique_deltas, bk, cfg.max_exact_vertices)
-        clock.lap("clique")
-        result.clique_sizes = [int(lv.indices.size) for lv in levels]
-        for lv in levels:
-            idx = lv.indices
-            if idx.size < 3:
-                continue
-            # Clique members agree pairwise within delta, so their residuals reach ~delta/2.
-            cb = np.maximum(bk[idx], 0.5 * lv.delta)
-            cand = gnc_tls(s[idx], r[idx], cb, wk[idx], gcfg)
-            if cand.ok:
-                candidates.append(_refine(s, r, wk, bk, cand.T, cfg.dof))
-        clock.lap("candidates")
 
     have_clouds = src_cloud is not None and ref_cloud is not None
     verifier = _verifier(src_cloud, ref_cloud, cfg) if have_clouds else None
@@ -279,30 +336,40 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     result.inliers = int(inl.sum())
     result.inlier_ratio = float(inl.mean())
     result.inlier_mask[keep[inl]] = True
+    result.inlier_groups = np.unique(gk[inl])
     result.spread = _spread(s[inl], cfg.dof) if inl.any() else 0.0
-
-    if result.inliers < cfg.min_inliers:
-        result.reason = "too_few_inliers"
-    elif result.spread < cfg.min_inlier_spread:
-        result.reason = "degenerate_geometry"
-    elif have_clouds:
-        if ver is not None and cfg.icp:
-            # A pose from node centers is decimetres off and the clouds would turn away a pair
-            # that ICP aligns; ICP can also slide along a wall, so it must not lose support.
-            T_icp = _icp(verifier, T, cfg)
-            ver_icp = verifier(T_icp)
-            clock.lap("icp")
-            if ver_icp.fitness >= ver.fitness:
-                result.T, result.refined, ver = T_icp, True, ver_icp
-        ok = (ver is not None and ver.footprint_fitness >= cfg.min_fitness
-              and ver.footprint_share >= cfg.min_footprint_share)
-        result.reason, result.success = ("ok", True) if ok else ("verification_failed", False)
-    else:
-        result.reason, result.success = "ok", True
+    vcfg = cfg.verdict
+    ev = Evidence(inliers=result.inliers, inlier_ratio=result.inlier_ratio,
+                  objects=int(result.inlier_groups.size), spread=result.spread)
+    # the costly parts (ICP, the competitor) only for what the correspondences already support
+    plausible = judge(ev, vcfg, have_clouds=False) == "ok"
+    if plausible and ver is not None and cfg.icp:
+        # A pose from node centers is decimetres off and the clouds would turn away a pair
+        # that ICP aligns; ICP can also slide along a wall, so it must not lose support.
+        T_icp = _icp(verifier, T, cfg)
+        ver_icp = verifier(T_icp)
+        clock.lap("icp")
+        if ver_icp.fitness >= ver.fitness:
+            result.T, result.refined, ver = T_icp, True, ver_icp
     if ver is not None:
+        ev.fitness, ev.footprint_share = ver.footprint_fitness, ver.footprint_share
         result.fitness, result.overlap = ver.fitness, ver.overlap
         result.verify_score, result.rmse = ver.score, ver.rmse
         result.footprint_share, result.footprint_fitness = ver.footprint_share, ver.footprint_fitness
+    elif have_clouds:   # clouds that cannot be verified on support nothing
+        ev.fitness = ev.footprint_share = 0.0
+    if plausible and judge(ev, vcfg, have_clouds) == "ok":
+        hypotheses = _competitors(s, r, wk, bk, gk, candidates, result.T, inl, cfg, gcfg)
+        rival = _rival(s, r, bk, gk, hypotheses, result.T, verifier, cfg)
+        if rival is not None:
+            result.T_competitor, ev.competitor_objects, ev.competitor_fitness = rival
+            ev.ambiguity = support(ev.competitor_objects, ev.competitor_fitness) / max(
+                support(ev.objects, ev.fitness), 1e-9)
+        clock.lap("competitor")
+    result.evidence = ev
+    result.reason = judge(ev, vcfg, have_clouds)
+    result.success = result.reason == "ok"
+    result.confidence = confidence(ev, vcfg)
     result.timing_ms = clock.done()
     return result
 

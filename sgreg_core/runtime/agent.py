@@ -12,18 +12,20 @@ from ..net.model import NodeFeatures, SGRegModel
 from ..pose import PoseConfig, ReferenceCloud
 from ..scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
-from .messages import GraphMessage
+from .messages import DenseRequestMessage, GraphMessage, graph_digest
 
 
 @dataclass
 class AgentConfig:
     """name: agent id, also the namespace of its topics.
     min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
-    max_points_in_map: a bigger instance map is refused (protects the node's memory and time)."""
+    max_points_in_map: a bigger instance map is refused (protects the node's memory and time).
+    dense_min_interval_s: at most one dense answer per requester per this interval."""
 
     name: str = "a"
     min_nodes: int = 3
     max_points_in_map: int = 2_000_000
+    dense_min_interval_s: float = 1.0
     graph: GraphConfig = field(default_factory=GraphConfig)
 
 
@@ -38,10 +40,13 @@ class AgentCore:
         self.weights_id = model.weights_id
         self.graph: SceneGraph | None = None
         self.features: NodeFeatures | None = None
+        self.digest = ""        # graph_digest of the current graph
         self.map_sequence = 0
         self.stamp = 0.0
         self.timing_ms: dict = {}
         self._reference: tuple[tuple, ReferenceCloud] | None = None
+        self._last_answer: dict[str, float] = {}   # requester -> time of the last dense answer
+        self.dense_sent = 0
 
     def warm_up(self) -> None:
         """Load the text encoder now: its first use takes seconds, which would otherwise
@@ -76,6 +81,7 @@ class AgentCore:
         """Encode a graph and make it the agent's current one."""
         timings = {} if timings is None else timings
         self.features = self.model.encode(graph, dense=True, timings=timings)
+        self.digest = graph_digest(self.features.node_ids, self.features.centers)
         self.graph = graph
         self.map_sequence, self.stamp, self.timing_ms = map_sequence, stamp, timings
 
@@ -103,6 +109,26 @@ class AgentCore:
         msg.point_node = node_of_point.astype(np.int64)
         msg.requester, msg.request_sequence = requester, request_sequence
         return msg
+
+    def answer_request(self, req: DenseRequestMessage, now: float) -> tuple[GraphMessage | None, str, str]:
+        """The dense answer to a peer's request, or why there is none.
+
+        Returns (message, "", "") or (None, counter, one-line reason): a request for another
+        agent, from other weights, before any map, or within dense_min_interval_s of the last
+        answer to the same requester is not answered."""
+        if req.to_agent != self.cfg.name:
+            return None, "request_not_for_me", f"dense request for '{req.to_agent}' on {self.cfg.name}'s topic; ignored"
+        if req.weights_id != self.weights_id:
+            return None, "request_other_weights", (f"dense request from {req.from_agent} runs weights "
+                                                   f"{req.weights_id}, this agent {self.weights_id}; not answered")
+        if not self.ready:
+            return None, "request_before_map", f"dense request from {req.from_agent} before any map; not answered"
+        if now - self._last_answer.get(req.from_agent, -np.inf) < self.cfg.dense_min_interval_s:
+            return None, "request_rate_limited", (f"dense request {req.sequence} from {req.from_agent} within "
+                                                  f"{self.cfg.dense_min_interval_s} s of the last answer; not answered")
+        self._last_answer[req.from_agent] = now
+        self.dense_sent += 1
+        return self.dense_message(self.dense_sent, req.node_ids, req.from_agent, req.sequence), "", ""
 
     def own_cloud(self) -> np.ndarray:
         """Every (voxelised) node point of the own graph: the verification cloud."""

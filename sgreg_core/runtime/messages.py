@@ -3,9 +3,18 @@
 The ROS layer converts sgreg_msgs to and from these; everything else works on them."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+from dataclasses import dataclass, field
 
 import numpy as np
+
+
+def graph_digest(node_ids: np.ndarray, centers: np.ndarray) -> str:
+    """12 hex chars naming a graph's content (node ids and centers to the millimetre): two maps
+    with one digest hold the same evidence, whatever their sequence numbers say."""
+    h = hashlib.sha256(np.ascontiguousarray(node_ids, np.int64).tobytes())
+    h.update(np.round(np.asarray(centers, np.float64) * 1000).astype(np.int64).tobytes())
+    return h.hexdigest()[:12]
 
 
 @dataclass
@@ -40,6 +49,10 @@ class GraphMessage:
     def is_dense(self) -> bool:
         return self.points is not None
 
+    @property
+    def digest(self) -> str:
+        return graph_digest(self.node_ids, self.centers)
+
 
 @dataclass
 class DenseRequestMessage:
@@ -53,7 +66,12 @@ class DenseRequestMessage:
 
 @dataclass
 class Estimate:
-    """One registration estimate T_agent^peer (maps the agent's map into the peer's)."""
+    """One registration estimate T_agent^peer (maps the agent's map into the peer's), as the
+    registration node publishes it. verified: the transform may be acted on (the verdict
+    passed and the link is confirmed); reason: "ok" or why not; confidence: P(T right |
+    evidence); inlier_objects / fitness / ambiguity: the verdict's evidence (all of it in
+    `evidence`, pose.verdict.Evidence as a dict); link: the peer link's state after this
+    estimate ("none", "candidate", "confirmed")."""
 
     peer_id: str
     T: np.ndarray
@@ -68,3 +86,8 @@ class Estimate:
     peer_coarse_sequence: int
     peer_dense_sequence: int
     timing_ms: dict
+    inlier_objects: int = 0
+    fitness: float = float("nan")
+    ambiguity: float = 0.0
+    link: str = "none"
+    evidence: dict = field(default_factory=dict)

@@ -2,23 +2,43 @@
 state machine, with every failure of DESIGN.md section 5 turned into a counter and a one-line
 reason instead of an exception.
 
-For each peer: coarse graphs arrive at ~1 Hz -> node matching -> an estimate from node centers
-(merged with the point correspondences kept from the last dense exchange) and, when enough nodes
-match and the minimum interval has passed, a dense request. A dense answer -> point matching ->
-a dense estimate. An estimate is verified only by the pose estimator's verification against a
-dense cloud of the peer; without one it is reported, never marked verified.
+For each peer: coarse graphs arrive at ~1 Hz -> an estimate from node centers (merged with the
+point correspondences kept from the link's last dense estimate) and, when enough nodes match
+and the minimum interval has passed, a dense request. A dense answer -> point matching -> a
+dense estimate. Every estimate runs the one pipeline of register.py (same code and verdict as
+`sgreg register` and the benchmarks), with the peer's graph as source and the agent's own as
+reference, so verification checks the peer's sampled points against the agent's full cloud.
+
+An estimate that passes the verdict is not yet published as verified. The link to a peer is:
+- none -> candidate: a first estimate that passes the verdict;
+- candidate -> confirmed: a second one, made from other data (a map of either agent with other
+  content, or the other kind of correspondences: points of a dense answer against node centers
+  of a coarse graph) and agreeing with the candidate (within agree_m / agree_deg); the transform is
+  published from then on, for every estimate that passes the verdict and agrees with the link;
+- confirmed -> none: an estimate made from new data (not merged with kept correspondences)
+  that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
+  becomes the new candidate and nothing is published for that peer until a link is confirmed
+  again.
+Merged estimates rest on kept correspondences, which are no new evidence: they can keep a
+confirmed link but never confirm or contradict one. The kept correspondences are re-checked
+whenever either map changes: when the nodes they come from have moved in either map (a
+front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
+the peer's dense cloud, and every merged estimate that fails the verdict drops them too.
+Without a dense cloud of the peer nothing is verified at all.
 """
 from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
+from ..geometry import invert_transform
+from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
-from ..pose.estimator import PoseConfig, estimate_pose
+from ..register import Correspondences, RegisterConfig, Registration, register_features
 from .agent import AgentCore
 from .messages import DenseRequestMessage, Estimate, GraphMessage
 
@@ -34,11 +54,18 @@ class RegistrationConfig:
     restart_sequence_max: a sequence that goes back to at most this value means the peer
         restarted (its map frame is new); any other step back is an out-of-order message.
     max_nodes / max_points: bigger messages are refused (oversized).
-    keep_correspondences: keep the latest dense point correspondences and merge them with
-        node-center matches when only coarse data arrives (the paper's scheme).
-    pose: the estimator, with ICP on: an estimate is verified only when, after ICP, at least
-        pose.min_fitness of the peer's points that land on the agent's footprint lie on its
-        surfaces (pose/verify.py). Verification on a 10 cm grid, as `sgreg register`."""
+    keep_correspondences: keep the inlier point correspondences of the link's last dense
+        estimate and merge them with node-center matches when only coarse data arrives (the
+        paper's scheme).
+    confirm: publish a link only once two estimates from different data agree (see the
+        module docstring); False publishes every estimate that passes the verdict.
+    agree_m / agree_deg: two estimates agree when they differ by less than this.
+    kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
+        nodes they come from moved by more than this (median, in either map) since.
+    register: the one registration pipeline (register.RegisterConfig): dense settings for
+        dense answers, coarse settings for coarse and merged estimates, ICP before the verdict.
+        The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
+        that land on the agent's footprint to lie on its surfaces (pose/verify.py)."""
 
     min_node_matches: int = 3
     min_request_interval_s: float = 5.0
@@ -50,7 +77,11 @@ class RegistrationConfig:
     max_nodes: int = 2000
     max_points: int = 500_000
     keep_correspondences: bool = True
-    pose: PoseConfig = field(default_factory=lambda: PoseConfig(icp=True, verify_voxel=0.1))
+    confirm: bool = True
+    agree_m: float = 0.3
+    agree_deg: float = 3.0
+    kept_max_shift_m: float = 0.5
+    register: RegisterConfig = field(default_factory=RegisterConfig)
 
 
 @dataclass
@@ -63,6 +94,41 @@ class _PendingRequest:
 
 
 @dataclass
+class Kept:
+    """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
+    had in each map then, to notice when either map moves under them."""
+
+    corr: Correspondences
+    peer_nodes: dict[int, np.ndarray]
+    own_nodes: dict[int, np.ndarray]
+
+
+def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
+    index = {int(i): k for k, i in enumerate(node_ids)}
+    return {int(i): np.asarray(centers[index[int(i)]], np.float64) for i in np.unique(ids) if int(i) in index}
+
+
+def _median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.ndarray) -> float:
+    """Median movement of the nodes in `then` (inf when fewer than half of them are left)."""
+    now = _centers_of(np.fromiter(then, np.int64), node_ids, centers)
+    if 2 * len(now) < len(then):
+        return float("inf")
+    return float(np.median([np.linalg.norm(now[i] - then[i]) for i in now])) if now else float("inf")
+
+
+@dataclass
+class Hypothesis:
+    """An estimate that passed the verdict. T: T_agent^peer; data: what it was made from (own
+    graph digest, peer graph digest, "dense" or "coarse"); kept: its inlier correspondences
+    (peer -> own) when dense."""
+
+    T: np.ndarray
+    data: tuple[str, str, str]
+    mode: str
+    kept: Kept | None = None
+
+
+@dataclass
 class PeerLink:
     """What the agent knows about one peer."""
 
@@ -71,13 +137,16 @@ class PeerLink:
     coarse_features: NodeFeatures | None = None
     dense: GraphMessage | None = None
     dense_cloud: np.ndarray | None = None
-    kept_own: np.ndarray | None = None    # (c, 3) own-frame points of kept correspondences
-    kept_peer: np.ndarray | None = None   # (c, 3) peer-frame points
-    kept_score: np.ndarray | None = None
+    kept: Kept | None = None     # peer -> own inliers kept for merged estimates
     pending: _PendingRequest | None = None
     last_request_at: float = -np.inf
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
-    last_verified: Estimate | None = None
+    candidate: Hypothesis | None = None
+    confirmed: Hypothesis | None = None
+
+    @property
+    def state(self) -> str:
+        return "confirmed" if self.confirmed else "candidate" if self.candidate else "none"
 
 
 class Registrar:
@@ -93,13 +162,15 @@ class Registrar:
         self.counters: Counter = Counter()
         self._request_seq = 0
         self._said: set = set()
+        self._dense_cfg = replace(cfg.register, mode="dense")
+        self._coarse_cfg = replace(cfg.register, mode="coarse")
 
     # ---- inputs --------------------------------------------------------------------------
     def prepare_own_map(self) -> None:
         """Build the own map's reference cloud (voxels, KD-tree, normals, footprint) now, once
         per map update, so that no estimate waits for it."""
         if self.agent.ready:
-            self.agent.reference_cloud(self.cfg.pose)
+            self.agent.reference_cloud(self.cfg.register.pose)
 
     def on_coarse(self, msg: GraphMessage, now: float) -> tuple[Estimate | None, DenseRequestMessage | None]:
         if msg.agent_id == self.agent.cfg.name:
@@ -114,10 +185,13 @@ class Registrar:
             return None, None
         timings: dict = {}
         t0 = time.perf_counter()
-        own = self.agent.features
-        matches = self.model.match_coarse(own, link.coarse_features, timings)
-        estimate = self._estimate_coarse(link, matches, timings, t0)
-        request = self._maybe_request(link, matches, now)
+        self._recheck_kept(link, msg)
+        kept = link.kept.corr if link.kept is not None else None
+        reg = register_features(self.model, link.coarse_features, self.agent.features,
+                                link.dense_cloud, self._own_reference(link.dense_cloud),
+                                self._coarse_cfg, timings, kept=kept)
+        estimate = self._judge(link, reg, msg.digest, timings, t0)
+        request = self._maybe_request(link, reg, now)
         return estimate, request
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
@@ -135,17 +209,13 @@ class Registrar:
         timings: dict = {}
         t0 = time.perf_counter()
         peer = self._dense_features(msg, timings)
-        own = self.agent.features
-        dm = self.model.match_dense(own, peer, timings)
         link.dense, link.dense_cloud = msg, msg.points
-        pts = dm.points
-        result, inliers = self._run_pose(link, "dense", len(dm.nodes), pts.src_xyz, pts.ref_xyz,
-                                         pts.score, link.dense_cloud, timings, t0, dense_seq=msg.sequence)
-        if self.cfg.keep_correspondences and result.verified:
-            # only the verified inliers: clean and few, so merged estimates stay fast
-            link.kept_own, link.kept_peer, link.kept_score = (
-                pts.src_xyz[inliers], pts.ref_xyz[inliers], pts.score[inliers])
-        return result
+        reg = register_features(self.model, peer, self.agent.features, msg.points,
+                                self._own_reference(msg.points), self._dense_cfg, timings)
+        # a dense answer holds only the requested nodes: name the peer's map by its coarse graph
+        same_map = link.coarse is not None and link.coarse.map_sequence == msg.map_sequence
+        peer_digest = link.coarse.digest if same_map else msg.digest
+        return self._judge(link, reg, peer_digest, timings, t0, dense=msg)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Retries of unanswered requests (with back-off), and giving up on silent peers."""
@@ -219,6 +289,10 @@ class Registrar:
         return None
 
     # ---- estimation ----------------------------------------------------------------------
+    def _own_reference(self, peer_cloud):
+        """The own map's verification cloud, when there is a peer cloud to check against it."""
+        return self.agent.reference_cloud(self.cfg.register.pose) if peer_cloud is not None else None
+
     def _dense_features(self, msg: GraphMessage, timings: dict) -> NodeFeatures:
         """The peer's points per node, padded to the model's K, and their point features Z."""
         t0 = time.perf_counter()
@@ -237,76 +311,114 @@ class Registrar:
         return NodeFeatures(node_ids=msg.node_ids, centers=msg.centers, x=msg.x,
                             points=points, valid=valid, z=z)
 
-    def _estimate_coarse(self, link: PeerLink, matches, timings: dict, t0: float) -> Estimate:
-        src, ref = matches.src_xyz, matches.ref_xyz
-        score = matches.score
-        mode = "coarse"
-        if self.cfg.keep_correspondences and link.kept_own is not None:
-            src = np.concatenate([src, link.kept_own])
-            ref = np.concatenate([ref, link.kept_peer])
-            score = np.concatenate([score, link.kept_score])
-            mode = "merged"
-        if len(matches) < self.cfg.min_coarse_matches and mode == "coarse":
-            return self._unverified(link, mode, "too_few_matches", len(matches), timings, t0)
-        return self._run_pose(link, mode, len(matches), src, ref, score, link.dense_cloud, timings, t0)[0]
+    def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
+        """Drop the kept correspondences and the peer's dense cloud when the nodes they come
+        from moved in either map since they were kept."""
+        if link.kept is None:
+            return
+        own = self.agent.features
+        shift = max(_median_shift(link.kept.peer_nodes, msg.node_ids, msg.centers),
+                    _median_shift(link.kept.own_nodes, own.node_ids, own.centers))
+        if shift > self.cfg.kept_max_shift_m:
+            self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
+                     f"{shift:.2f} m since the dense exchange")
+            self._count("kept_dropped")
+            link.kept, link.dense_cloud = None, None
 
-    def _run_pose(self, link: PeerLink, mode: str, node_matches: int, src, ref, score,
-                  peer_cloud, timings: dict, t0: float,
-                  dense_seq: int | None = None) -> tuple[Estimate, np.ndarray]:
-        """The estimate, and which of the given correspondences are its inliers."""
-        t_pose = time.perf_counter()
-        # Solved peer -> own and inverted: verification checks the sparse peer points (K per
-        # requested node) against the agent's full cloud, not the other way round, where most
-        # of the full cloud has no sampled partner and fitness would say nothing.
-        res = estimate_pose(np.asarray(ref, np.float64), np.asarray(src, np.float64),
-                            weights=np.asarray(score, np.float64), src_cloud=peer_cloud,
-                            ref_cloud=self.agent.reference_cloud(self.cfg.pose)
-                            if peer_cloud is not None else None,
-                            cfg=self.cfg.pose)
-        T = np.linalg.inv(np.asarray(res.T, np.float64))
-        timings["pose"] = 1e3 * (time.perf_counter() - t_pose)
+    def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
+               t0: float, dense: GraphMessage | None = None) -> Estimate:
+        """The estimate as published: the verdict of the pipeline, then the link's rules."""
         timings["total"] = 1e3 * (time.perf_counter() - t0)
-        if not res.success:
-            reason = res.reason
-        elif peer_cloud is None:
+        self._count(f"estimates_{reg.mode}")
+        T = invert_transform(reg.T)          # the pipeline maps peer -> own; publish own -> peer
+        if reg.mode == "coarse" and reg.node_matches < self.cfg.min_coarse_matches:
+            reason = "too_few_matches"
+        elif reg.success and link.dense_cloud is None:
             reason = "no_peer_cloud_to_verify"
         else:
-            reason = "ok"
-        verified = reason == "ok"
-        confidence = float(res.footprint_fitness) if np.isfinite(res.footprint_fitness) else 0.0
-        est = Estimate(peer_id=link.peer_id, T=T, verified=verified,
-                       mode=mode, reason=reason, node_matches=node_matches,
-                       correspondences=int(len(src)), inliers=int(res.inliers),
-                       inlier_ratio=float(res.inlier_ratio), confidence=confidence,
+            kept = None
+            if dense is not None and reg.success and self.cfg.keep_correspondences:
+                corr, own = reg.inlier_corr(), self.agent.features
+                kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.node_ids, dense.centers),
+                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers))
+            kind = "dense" if reg.mode == "dense" else "coarse"
+            hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
+            reason = self._link_rules(link, reg, hyp)
+        if reason != "ok":
+            self._count(reason)
+        ev = reg.evidence
+        est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", mode=reg.mode,
+                       reason=reason, node_matches=reg.node_matches,
+                       correspondences=reg.correspondences, inliers=reg.inliers,
+                       inlier_ratio=reg.inlier_ratio, confidence=float(reg.confidence),
                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
-                       peer_dense_sequence=dense_seq if dense_seq is not None else
+                       peer_dense_sequence=dense.sequence if dense is not None else
                        (link.dense.sequence if link.dense else 0),
-                       timing_ms=timings)
-        self._count(f"estimates_{mode}")
-        if verified:
+                       timing_ms=timings, inlier_objects=int(ev.objects),
+                       fitness=float(ev.fitness), ambiguity=float(ev.ambiguity), link=link.state,
+                       evidence=dict(vars(ev)))
+        if est.verified:
             self._count("verified")
-            link.last_verified = est
-        return est, np.asarray(res.inlier_mask, bool)
+        return est
 
-    def _unverified(self, link: PeerLink, mode: str, reason: str, node_matches: int,
-                    timings: dict, t0: float) -> Estimate:
-        timings["total"] = 1e3 * (time.perf_counter() - t0)
-        self._count(reason)
-        return Estimate(peer_id=link.peer_id, T=np.eye(4), verified=False, mode=mode, reason=reason,
-                        node_matches=node_matches, correspondences=node_matches, inliers=0,
-                        inlier_ratio=0.0, confidence=0.0,
-                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
-                        peer_dense_sequence=link.dense.sequence if link.dense else 0,
-                        timing_ms=timings)
+    def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
+        return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg
+
+    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis) -> str:
+        """"ok" when the estimate may be published as verified, else why not; updates the link."""
+        merged = reg.mode == "merged"
+        if not reg.success:
+            if merged:   # the kept correspondences no longer hold on the current maps
+                link.kept = None
+                self._count("kept_dropped")
+            return reg.reason
+        if not self.cfg.confirm:
+            link.confirmed = hyp
+            self._keep(link, hyp)
+            return "ok"
+        if link.confirmed is not None:
+            if self._agree(hyp.T, link.confirmed.T):
+                link.confirmed = Hypothesis(hyp.T, hyp.data, hyp.mode, None)
+                self._keep(link, hyp)
+                return "ok"
+            if merged:
+                link.kept = None
+                return "disagrees_with_link"
+            d = rte(hyp.T, link.confirmed.T), rre(hyp.T, link.confirmed.T)
+            self.log(f"link to {link.peer_id} withdrawn: a {reg.mode} estimate from new data "
+                     f"({reg.inliers} inliers on {reg.evidence.objects} objects) lies "
+                     f"{d[0]:.2f} m / {d[1]:.1f} deg from it")
+            self._count("withdrawn")
+            link.confirmed, link.kept, link.candidate = None, None, hyp
+            return "contradicted"
+        if merged:      # kept correspondences without a confirmed link: nothing new
+            return "awaiting_confirmation"
+        cand = link.candidate
+        if cand is not None and self._agree(hyp.T, cand.T):
+            if cand.data != hyp.data:
+                link.confirmed, link.candidate = hyp, None
+                self._keep(link, hyp if hyp.kept is not None else cand)
+                self._count("confirmed")
+                return "ok"
+            if cand.kept is None:   # same data again: no confirmation, but keep dense inliers
+                cand.kept = hyp.kept
+            return "awaiting_confirmation"
+        link.candidate = hyp
+        return "awaiting_confirmation"
+
+    def _keep(self, link: PeerLink, hyp: Hypothesis) -> None:
+        if hyp.kept is not None and len(hyp.kept.corr):
+            link.kept = hyp.kept
 
     # ---- dense requests ------------------------------------------------------------------
-    def _maybe_request(self, link: PeerLink, matches, now: float) -> DenseRequestMessage | None:
-        if len(matches) < self.cfg.min_node_matches or link.pending is not None:
+    def _maybe_request(self, link: PeerLink, reg: Registration, now: float) -> DenseRequestMessage | None:
+        """Ask for the points of the peer's matched nodes, rate-limited, one request at a time."""
+        if reg.node_matches < self.cfg.min_node_matches or link.pending is not None:
             return None
         if now - link.last_request_at < self.cfg.min_request_interval_s:
             return None
         self._request_seq += 1
-        wanted = np.unique(link.coarse.node_ids[matches.ref_idx])
+        wanted = np.unique(reg.node_pairs[:, 0])   # the peer's graph is the source
         link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now)
         link.last_request_at = now
         self._count("requests")

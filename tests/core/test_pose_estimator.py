@@ -259,3 +259,39 @@ def test_bench_pose_cli(tmp_path, capsys):
     assert all(r["success_rate"] == 1.0 and r["rte_m_median"] < 0.05 for r in rows)
     assert "clique ms" in capsys.readouterr().out
     assert main(["bench-pose", "--outliers", "1.5", "--out", str(out)]) == 2
+
+
+def object_correspondences(rng, T, centers, per_object=12, noise=0.01, size=0.15):
+    """Correspondences on objects (about `size` m) at `centers`, consistent with T, and their
+    groups."""
+    src = np.concatenate([c + rng.normal(0, size, (per_object, 3)) for c in centers])
+    groups = np.repeat(np.arange(len(centers)), per_object)
+    return src, apply_T(T, src) + rng.normal(0, noise, src.shape), groups
+
+
+@pytest.mark.parametrize("rival_objects,reason", [(5, "ambiguous"), (2, "ok")])
+def test_near_tie_between_two_hypotheses_is_refused(rival_objects, reason):
+    """Objects matched to their look-alikes (a symmetric room) agree on a second pose: when
+    that pose is as well supported as the first, no pose is trusted; a clearly weaker rival
+    does not stop a clear winner."""
+    rng = np.random.default_rng(rival_objects)
+    T1 = random_room_pose(rng)
+    T2 = T1 @ make_T(yaw_rotation(np.pi), np.zeros(3))     # the same room turned half a turn
+    s1, r1, g1 = object_correspondences(rng, T1, rng.uniform(0, ROOM, (5, 3)))
+    s2, r2, g2 = object_correspondences(rng, T2, rng.uniform(0, ROOM, (rival_objects, 3)))
+    res = estimate_pose(np.r_[s1, s2], np.r_[r1, r2], groups=np.r_[g1, g2 + 100],
+                        cfg=PoseConfig(nms_radius=0.0))
+    assert res.reason == reason, res.evidence
+    assert res.evidence.objects == 5 and res.evidence.competitor_objects == rival_objects
+    assert pose_error(res.T, T1)[0] < 0.05 and pose_error(res.T_competitor, T2)[0] < 0.05
+
+
+def test_inliers_from_too_few_objects_are_refused():
+    rng = np.random.default_rng(3)
+    T = random_room_pose(rng)
+    src, ref, groups = object_correspondences(rng, T, rng.uniform(0, ROOM, (2, 3)), per_object=40,
+                                              size=0.5)
+    res = estimate_pose(src, ref, groups=groups, cfg=PoseConfig(nms_radius=0.0))
+    assert pose_error(res.T, T)[0] < 0.05           # the pose is right, but two objects are
+    assert res.reason == "too_few_objects"          # not enough to trust it
+    assert estimate_pose(src, ref, cfg=PoseConfig(nms_radius=0.0)).success   # points alone would

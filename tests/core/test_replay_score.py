@@ -45,3 +45,19 @@ def test_success_rate_counts_verified_correct_frames_only():
 def test_empty_replay():
     s = score_replay([], FRAMES)
     assert s.query_frames == 0 and s.success_rate == 0.0 and s.first_success_s is None
+
+
+def test_registrable_frames_and_time_to_first_success():
+    gt = ground_truth(FRAMES, "a", "b")
+    # a holds objects 1-5 from t=0; b holds 7, 8 at first and 1, 2, 3 from bag time 4
+    objects = {"a": [[0.0, [1, 2, 3, 4, 5]]], "b": [[0.0, [7, 8]], [4.0, [1, 2, 3, 7, 8]]]}
+    records = [rec(t, "a", "b", gt if t >= 6 else np.eye(4), t >= 6) for t in (1.0, 3.0, 5.0, 6.0, 7.0)]
+    for r in records:
+        r.bag_t = r.t - 0.5            # frames fall half a second after the bag's clock
+    s = score_replay(records, FRAMES, objects)
+    assert [f.shared_objects for f in s.frames] == [0, 0, 3, 3, 3]
+    assert s.registrable_frames == 3 and s.success_rate_registrable == 2 / 3
+    link = s.links["a->b"]
+    assert link["first_registrable_s"] == 5.0 and link["first_success_s"] == 6.0
+    assert link["time_to_success_s"] == 1.0
+    assert score_replay(records, FRAMES).registrable_frames is None     # bags without objects

@@ -36,22 +36,86 @@ def make_agents(model, graphs, cfg=None):
     return a, b, reg, logs
 
 
-def test_coarse_then_dense_gives_a_verified_transform(model, graphs):
+def test_coarse_then_dense_then_confirmation_gives_a_verified_transform(model, graphs):
     a, b, reg, _ = make_agents(model, graphs)
     est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert est is not None and est.mode == "coarse" and not est.verified
+    assert est.reason == "no_peer_cloud_to_verify"        # nothing to check the pose against
     assert req is not None and req.to_agent == "b" and req.from_agent == "a" and len(req.node_ids) >= 3
     dense = b.dense_message(1, req.node_ids, "a", req.sequence)
     est = reg.on_dense(dense, now=0.5)
-    assert est.mode == "dense"
-    assert est.verified, est.reason
-    assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
+    assert est.mode == "dense" and not est.verified
+    assert est.reason == "awaiting_confirmation" and est.link == "candidate"
+    assert rte(est.T, T_GT) < 0.2 and est.confidence > 0.5
     assert reg.peers["b"].pending is None
-    # the next coarse message merges the kept point correspondences and can be verified
+    # node centers of the next coarse graph are other evidence than the points: it confirms
     est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified and est.reason == "ok" and est.link == "confirmed", est.reason
+    assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
+    assert reg.counters["confirmed"] == 1
+    # the next coarse message merges the dense inliers kept with the link, and is verified
+    est, req = reg.on_coarse(b.coarse_message(3), now=2.0)
     assert est.mode == "merged" and est.verified
     assert rte(est.T, T_GT) < 0.2
     assert req is None   # min_request_interval_s has not passed
+
+
+def test_the_same_data_twice_does_not_confirm(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs, RegistrationConfig(min_request_interval_s=0.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    for seq in (1, 2):   # two dense answers from the same maps
+        est = reg.on_dense(b.dense_message(seq, req.node_ids, "a", req.sequence), now=seq)
+        assert est.reason == "awaiting_confirmation", est.reason
+    b.set_graph(graphs[1], 2, 3.0)    # b's map sequence moves on, its content does not
+    est = reg.on_dense(b.dense_message(3, req.node_ids, "a", req.sequence), now=3.0)
+    assert est.reason == "awaiting_confirmation"
+    # new content (b's map drifted by 2 cm): new evidence
+    moved = moved_graph(graphs[1], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(1))
+    b.set_graph(moved, 3, 4.0)
+    est = reg.on_dense(b.dense_message(4, req.node_ids, "a", req.sequence), now=4.0)
+    assert est.verified, est.reason
+
+
+def confirmed_registrar(model, graphs, cfg=None):
+    """a's registrar with a confirmed link to b (a dense candidate, then a coarse estimate)."""
+    a, b, reg, logs = make_agents(model, graphs, cfg)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified, est.reason
+    return a, b, reg, logs
+
+
+def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
+    a, b, reg, logs = confirmed_registrar(model, graphs, RegistrationConfig(min_request_interval_s=0.0))
+    # b's map frame moves (e.g. its SLAM re-anchored): a well-supported estimate from new data
+    # now disagrees with the published link
+    W = yaw_transform(np.radians(60.0), (2.0, 1.0, 0.0))
+    rng = np.random.default_rng(9)
+    moved = moved_graph(graphs[1], W, rng, jitter=0.002)
+    b.set_graph(moved, 3, 2.0)
+    reg.on_coarse(b.coarse_message(3), now=2.0)
+    req = reg.peers["b"].pending         # a's outstanding request, answered from b's new map
+    assert req is not None
+    est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.5)
+    assert est.reason == "contradicted" and not est.verified and est.link == "candidate"
+    assert reg.counters["withdrawn"] == 1 and any("withdrawn" in line for line in logs)
+    assert reg.peers["b"].kept is None
+    # the new pose is published once other evidence (here node centers) confirms it
+    est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
+    assert est.verified and est.mode == "coarse" and rte(est.T, W @ T_GT) < 0.2
+
+
+def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, graphs):
+    a, b, reg, _ = confirmed_registrar(model, graphs)
+    assert reg.peers["b"].kept is not None
+    # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
+    # cloud they were verified on, no longer describe b's map
+    b.set_graph(moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3)), 2, 2.0)
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
+    assert reg.peers["b"].kept is None and reg.peers["b"].dense_cloud is None
+    assert reg.counters["kept_dropped"] == 1
 
 
 def test_duplicate_out_of_order_and_restart(model, graphs):
@@ -137,7 +201,8 @@ def test_own_messages_are_ignored(model, graphs):
 def test_own_reference_cloud_is_built_once_per_map(model, graphs):
     a, _, reg, _ = make_agents(model, graphs)
     reg.prepare_own_map()
-    first = a.reference_cloud(reg.cfg.pose)
-    assert first.valid and a.reference_cloud(reg.cfg.pose) is first
+    pose = reg.cfg.register.pose
+    first = a.reference_cloud(pose)
+    assert first.valid and a.reference_cloud(pose) is first
     a.set_graph(graphs[0], 2, 1.0)   # a new map: a new reference
-    assert a.reference_cloud(reg.cfg.pose) is not first
+    assert a.reference_cloud(pose) is not first

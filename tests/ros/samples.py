@@ -87,8 +87,9 @@ def registration_result(rng):
     r.verified = True
     r.mode = "dense"
     r.reason = "ok"
-    r.node_matches, r.correspondences, r.inliers = (int(v) for v in rng.integers(0, 1000, 3))
-    r.inlier_ratio, r.confidence = (float(np.float32(v)) for v in rng.random(2))
+    r.link = "confirmed"
+    r.node_matches, r.correspondences, r.inliers, r.inlier_objects = (int(v) for v in rng.integers(0, 1000, 4))
+    r.inlier_ratio, r.confidence, r.fitness, r.ambiguity = (float(np.float32(v)) for v in rng.random(4))
     r.peer_coarse_sequence, r.peer_dense_sequence = (int(v) for v in rng.integers(0, 2**32, 2))
     r.timing_names = ["match", "pose", "total"]
     r.timing_ms = rng.random(3).astype(np.float32).tolist()

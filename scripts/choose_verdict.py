@@ -1,0 +1,119 @@
+#!/usr/bin/env python
+"""Choose the verdict's thresholds and fit its confidence from offline replays.
+
+Input: `sgreg bench-replay --backend offline` result folders run with a permissive verdict (every
+estimate judged, none refused, no confirmation; see docs/VERDICT.md for the command), so that
+every estimate carries its full evidence. Bags of held-out rooms are left out: thresholds are
+chosen on rooms seen in training and on synthetic scenes only.
+
+For dense and coarse/merged estimates separately it prints how right and wrong estimates spread
+over each piece of evidence, then, over a grid of thresholds, how many wrong estimates each
+setting would still accept and how many right ones it would refuse. Last it fits the logistic
+confidence (pose/verdict.py `confidence`) on every estimate and prints its weights.
+
+    python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--held-out scene0005]
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+
+FEATURES = ("objects", "inliers", "spread", "fitness", "footprint_share", "ambiguity", "inlier_ratio")
+
+
+def load_frames(dirs: list[str], held_out: list[str]) -> list[dict]:
+    frames = []
+    for d in dirs:
+        for path in sorted(Path(d, "bags").glob("*.json")):
+            if any(room in path.stem for room in held_out):
+                continue
+            for f in json.loads(path.read_text())["frames"]:
+                ev = f.get("evidence") or {}
+                if "objects" not in ev or f["reason"] in ("too_few_matches", "no_peer_cloud_to_verify",
+                                                          "too_few_nodes", "no_node_matches"):
+                    continue
+                frames.append({**{k: float(ev.get(k) if ev.get(k) is not None else np.nan)
+                                  for k in FEATURES},
+                               "mode": f["mode"], "correct": bool(f["correct"]), "bag": path.stem})
+    return frames
+
+
+def describe(frames: list[dict]) -> None:
+    ok = [f for f in frames if f["correct"]]
+    bad = [f for f in frames if not f["correct"]]
+    print(f"  {len(ok)} right, {len(bad)} wrong estimates")
+    for k in FEATURES:
+        a = np.array([f[k] for f in ok])
+        b = np.array([f[k] for f in bad])
+        q = lambda v: " ".join(f"{x:6.2f}" for x in np.nanpercentile(v, [5, 25, 50, 75, 95])) if len(v) else "-"
+        print(f"  {k:16s} right p5..p95 {q(a)}   wrong p5..p95 {q(b)}")
+
+
+def grid(frames: list[dict], min_inliers: int) -> None:
+    ok = np.array([f["correct"] for f in frames])
+    x = {k: np.nan_to_num(np.array([f[k] for f in frames]), nan=0.0) for k in FEATURES}
+    rows = []
+    for objects, fit, share, amb, spread in itertools.product(
+            (2, 3, 4, 5), (0.5, 0.55, 0.6, 0.65, 0.7), (0.1, 0.2, 0.3), (0.5, 0.6, 0.7, 0.8, 1.0),
+            (0.1, 0.2, 0.3)):
+        acc = ((x["inliers"] >= min_inliers) & (x["objects"] >= objects) & (x["fitness"] >= fit)
+               & (x["footprint_share"] >= share) & (x["ambiguity"] < amb) & (x["spread"] >= spread))
+        rows.append((int((acc & ~ok).sum()), -int((acc & ok).sum()), objects, fit, share, amb, spread))
+    rows.sort()
+    print(f"  {'wrong accepted':>14} {'right accepted':>14}  objects fitness share ambiguity< spread")
+    for wrong, right, *t in rows[:12]:
+        print(f"  {wrong:14d} {-right:14d}  {t[0]:7d} {t[1]:7.2f} {t[2]:5.2f} {t[3]:10.2f} {t[4]:6.2f}"
+              f"   (of {int(ok.sum())} right)")
+
+
+def design(frames: list[dict]) -> np.ndarray:
+    def col(k, default=0.0):
+        return np.nan_to_num(np.array([f[k] for f in frames]), nan=default)
+    return np.stack([np.ones(len(frames)), np.log1p(col("objects")), col("fitness"),
+                     col("footprint_share"), np.minimum(col("ambiguity"), 1.5), col("inlier_ratio")], 1)
+
+
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50) -> np.ndarray:
+    """Newton's method on the L2-regularised log-likelihood."""
+    w = np.zeros(X.shape[1])
+    for _ in range(iters):
+        p = 1 / (1 + np.exp(-X @ w))
+        g = X.T @ (p - y) + l2 * w
+        H = X.T @ (X * (p * (1 - p))[:, None]) + l2 * np.eye(X.shape[1])
+        step = np.linalg.solve(H, g)
+        w -= step
+        if np.abs(step).max() < 1e-8:
+            break
+    return w
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("dirs", nargs="+")
+    p.add_argument("--held-out", nargs="*", default=["scene0005"])
+    args = p.parse_args()
+    frames = load_frames(args.dirs, args.held_out)
+    print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
+          f"(held-out rooms {args.held_out} left out)")
+    for name, modes, min_inliers in (("dense", ("dense",), 8), ("coarse and merged", ("coarse", "merged"), 4)):
+        sel = [f for f in frames if f["mode"] in modes]
+        print(f"\n{name}:")
+        describe(sel)
+        grid(sel, min_inliers)
+    X, y = design(frames), np.array([f["correct"] for f in frames], float)
+    w = fit_logistic(X, y)
+    p_hat = 1 / (1 + np.exp(-X @ w))
+    edges = np.linspace(0, 1, 11)
+    idx = np.clip(np.digitize(p_hat, edges[1:-1]), 0, 9)
+    ece = sum(abs(p_hat[idx == b].mean() - y[idx == b].mean()) * (idx == b).sum()
+              for b in range(10) if (idx == b).any()) / len(y)
+    print(f"\nconfidence weights (bias, log1p objects, fitness, footprint share, ambiguity, "
+          f"inlier ratio): ({', '.join(f'{v:.3f}' for v in w)})  training ECE {ece:.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,238 @@
+"""Replay suites: a YAML file of two-agent bags to make (or take as they are) and replay, and the
+summary of their scores.
+
+A suite file (see bench/suites/*.yaml):
+
+    name: real
+    data: ../../../shared/data        # scan paths below are relative to this (itself
+                                      # relative to the suite file)
+    bag_dir: ../../../bags/generated/real   # where made bags go (git-ignored)
+    held_out: [scene0005]             # rooms reported on their own rows
+    seeds: [1, 2, 3]
+    defaults: {voxel: 0.05, clearance: 0.15}      # make-bag settings (commands/make_bag.BagSpec)
+    walks:                            # every scan entry is made once per walk and seed
+      slow_opposite: {speed: 0.2, opposite: true}
+      fast_same: {speed: 0.5, opposite: false}
+    scans:                            # make-bag inputs: a scan, or two captures of a room
+      - scan: scans/scannet-picwoon_scene0000_00
+      - {scan: scans/scannet-picwoon_scene0003_00, scan_b: scans/scannet-picwoon_scene0003_01,
+         gt: rescan_gt.json}
+      - synth: {kind: office, rooms: 5, seed: 4}  # a synthetic scene made first
+    bags:                             # bags taken as they are (paths relative to the file)
+      - ../../../bags/apartment_opposite
+
+Public API:
+    BagJob                        one bag of a suite: name, how to make it (or its path), tags
+    Suite                         name, jobs, held-out rooms, directories
+    load_suite(path) -> Suite     raises SuiteError with a one-line reason
+    room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
+    summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
+                                  cross capture, synthetic, each walk; "bags": one row per bag
+    format_summary(summary) -> str
+    reliability(frames, bins) -> dict    stated confidence against observed correctness
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SCENE = re.compile(r"(scene\d{4})_\d{2}")
+
+
+class SuiteError(ValueError):
+    """A suite file that cannot be used; the message says why in one line."""
+
+
+@dataclass
+class BagJob:
+    """name: unique within the suite (also the bag's folder under bag_dir);
+    spec: make-bag settings (dict of commands.make_bag.BagSpec fields) or None for a bag
+    taken as it is at `path`; synth: settings of a synthetic scene to generate first (then
+    spec["scan"] is where it goes); room / capture ("single", "cross", "synthetic") / walk /
+    seed: tags the summary groups by."""
+
+    name: str
+    path: Path
+    spec: dict | None = None
+    synth: dict | None = None
+    room: str = ""
+    capture: str = "single"
+    walk: str = ""
+    seed: int | None = None
+
+
+@dataclass
+class Suite:
+    name: str
+    path: Path
+    jobs: list[BagJob]
+    held_out: tuple[str, ...] = ()
+    bag_dir: Path | None = None
+
+
+def room_of(path: str | Path) -> str:
+    m = SCENE.search(Path(path).name)
+    return m.group(1) if m else Path(path).name
+
+
+def _short(scan: str) -> str:
+    m = SCENE.search(Path(scan).name)
+    return m.group(0) if m else Path(scan).name
+
+
+def load_suite(path: str | Path) -> Suite:
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise SuiteError(f"cannot read suite {path}: {exc}") from None
+    if not isinstance(doc, dict):
+        raise SuiteError(f"suite {path} is not a mapping")
+    unknown = set(doc) - {"name", "data", "bag_dir", "held_out", "seeds", "defaults", "walks",
+                          "scans", "bags"}
+    if unknown:
+        raise SuiteError(f"suite {path}: unknown keys {sorted(unknown)}")
+    base = path.parent
+    data = (base / doc.get("data", ".")).resolve()
+    bag_dir = (base / doc.get("bag_dir", f"generated/{path.stem}")).resolve()
+    seeds = list(doc.get("seeds") or [0])
+    walks = doc.get("walks") or {"default": {}}
+    defaults = dict(doc.get("defaults") or {})
+    jobs: list[BagJob] = []
+    for entry in doc.get("scans") or []:
+        if not isinstance(entry, dict) or not ({"scan", "synth"} & set(entry)):
+            raise SuiteError(f"suite {path}: a scans entry needs 'scan' or 'synth', got {entry!r}")
+        synth = entry.get("synth")
+        if synth is not None:
+            stem = f"synth_{synth.get('kind', 'apartment')}{synth.get('rooms', 1)}_{synth.get('seed', 0)}"
+            scan, capture, room = str(bag_dir / "scenes" / stem), "synthetic", stem
+        else:
+            scan = str(data / entry["scan"])
+            capture = "cross" if entry.get("scan_b") else "single"
+            room = room_of(scan)
+            stem = _short(scan) + (f"x{_short(entry['scan_b'])[-2:]}" if entry.get("scan_b") else "")
+            if not Path(scan).exists():
+                raise SuiteError(f"suite {path}: scan {scan} not found (is {data} the data folder?)")
+        extra = {k: v for k, v in entry.items() if k not in ("scan", "synth")}
+        for key in ("scan_b", "gt"):
+            if key in extra:
+                extra[key] = str(data / extra[key])
+        for walk, walk_settings in walks.items():
+            for seed in seeds:
+                name = f"{stem}_{walk}_s{seed}"
+                spec = {**defaults, **walk_settings, **extra, "scan": scan, "seed": int(seed)}
+                jobs.append(BagJob(name, bag_dir / name, spec, synth, room, capture, walk, int(seed)))
+    for entry in doc.get("bags") or []:
+        bag = (base / entry).resolve()
+        jobs.append(BagJob(bag.name, bag, room=bag.name, capture="synthetic", walk="shipped"))
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        raise SuiteError(f"suite {path}: two bags share a name")
+    if not jobs:
+        raise SuiteError(f"suite {path} names no bags")
+    return Suite(doc.get("name", path.stem), path, jobs, tuple(doc.get("held_out") or ()), bag_dir)
+
+
+# ---- summary --------------------------------------------------------------------------------
+def _median(values) -> float | None:
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return float(np.median(v)) if v else None
+
+
+def _row(results: list[dict]) -> dict:
+    """One summary row over the bags' results (frames pooled)."""
+    frames = [f for r in results for f in r["frames"]]
+    reg = [f for f in frames if f.get("registrable")]
+    links = [link for r in results for link in r.get("links", {}).values()]
+    reg_links = [link for link in links if link["first_registrable_s"] is not None]
+    kb = [r.get("kb_per_query_frame") for r in results]
+    return {
+        "bags": len(results),
+        "query_frames": len(frames),
+        "registrable_frames": len(reg),
+        "success_rate": (sum(f["success"] for f in frames) / len(frames)) if frames else None,
+        "success_rate_registrable": (sum(f["success"] for f in reg) / len(reg)) if reg else None,
+        "wrong_verified": int(sum(f["verified"] and not f["correct"] for f in frames)),
+        "bags_with_wrong_verified": int(sum(r["wrong_verified"] > 0 for r in results)),
+        "median_time_to_success_s": _median(link["time_to_success_s"] for link in reg_links),
+        "links_never_registered": int(sum(link["time_to_success_s"] is None for link in reg_links)),
+        "kb_per_query_frame": _median(kb),
+        "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
+        "dense_latency_ms": _median(r["dense_latency_ms"]["median"] for r in results),
+    }
+
+
+def summarize(results: dict[str, dict], suite: Suite) -> dict:
+    """results: bag name -> replay report (with frames and links)."""
+    jobs = {j.name: j for j in suite.jobs if j.name in results}
+    groups: dict[str, list[str]] = {"all": list(jobs)}
+    held = [n for n, j in jobs.items() if j.room in suite.held_out]
+    if held:
+        groups["held-out rooms (" + ", ".join(suite.held_out) + ")"] = held
+        groups["rooms seen in training"] = [n for n in jobs if n not in held]
+    for capture in ("single", "cross", "synthetic"):
+        names = [n for n, j in jobs.items() if j.capture == capture]
+        if names and len(names) < len(jobs):
+            groups[f"{capture} capture" if capture != "synthetic" else "synthetic"] = names
+    walks = sorted({j.walk for j in jobs.values()})
+    if len(walks) > 1:
+        for walk in walks:
+            groups[f"walk {walk}"] = [n for n, j in jobs.items() if j.walk == walk]
+    return {"suite": suite.name,
+            "rows": {g: _row([results[n] for n in names]) for g, names in groups.items()},
+            "bags": {n: {**_row([results[n]]), "room": j.room, "capture": j.capture,
+                         "walk": j.walk, "seed": j.seed} for n, j in jobs.items()}}
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f} %"
+
+
+def _num(v, fmt="{:.1f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+HEADER = ["", "bags", "frames", "registrable", "success", "success (registrable)",
+          "wrong verified", "time to success (median)", "never registered", "kB / frame",
+          "coarse / dense ms"]
+
+
+def _cells(name: str, r: dict) -> list[str]:
+    return [name, str(r["bags"]), str(r["query_frames"]), str(r["registrable_frames"]),
+            _pct(r["success_rate"]), _pct(r["success_rate_registrable"]),
+            str(r["wrong_verified"]), _num(r["median_time_to_success_s"], "{:.1f} s"),
+            str(r["links_never_registered"]), _num(r["kb_per_query_frame"]),
+            f"{_num(r['coarse_latency_ms'], '{:.0f}')} / {_num(r['dense_latency_ms'], '{:.0f}')}"]
+
+
+def format_summary(summary: dict) -> str:
+    from ..bandwidth import format_table
+
+    per_bag = format_table(HEADER, [_cells(n, r) for n, r in summary["bags"].items()])
+    overall = format_table(HEADER, [_cells(n, r) for n, r in summary["rows"].items()])
+    return f"{per_bag}\n\nsuite {summary['suite']}:\n{overall}"
+
+
+def reliability(frames: list[dict], bins: int = 10) -> dict:
+    """Stated confidence against observed correctness over frames with an estimate: per bin
+    the mean confidence, the share of correct estimates and the count; ECE (count-weighted
+    mean gap)."""
+    conf = np.array([f["confidence"] for f in frames], np.float64)
+    ok = np.array([f["correct"] for f in frames], bool)
+    keep = np.isfinite(conf)
+    conf, ok = conf[keep], ok[keep]
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.clip(np.digitize(conf, edges[1:-1]), 0, bins - 1)
+    rows = []
+    for b in range(bins):
+        m = idx == b
+        rows.append({"lo": float(edges[b]), "hi": float(edges[b + 1]), "n": int(m.sum()),
+                     "confidence": float(conf[m].mean()) if m.any() else None,
+                     "correct": float(ok[m].mean()) if m.any() else None})
+    ece = sum(r["n"] * abs(r["confidence"] - r["correct"]) for r in rows if r["n"]) / max(len(conf), 1)
+    return {"bins": rows, "ece": float(ece), "n": int(len(conf))}

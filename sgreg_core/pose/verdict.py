@@ -1,0 +1,118 @@
+"""The verdict on one estimate: is the pose well enough supported to act on, and how sure is it.
+
+A single good-looking fit is not enough on live, partial maps: a few wrong node matches can
+agree on a wrong pose, and floor and walls then support it. So the verdict asks for evidence
+along three lines, each measured by the estimator (pose/estimator.py):
+
+- correspondences: enough inlier correspondences, from enough distinct objects (node matches),
+  spread over the map (inlier objects on one line or in one spot do not fix a pose);
+- geometry: after ICP, the source points that land on the reference's footprint lie on its
+  surfaces (footprint fitness), and enough of them land there (an overlap estimate);
+- ambiguity: the best competing hypothesis (a pose far from the winner, found among the
+  correspondences the winner leaves unexplained and among the other candidates) must be
+  clearly worse supported; a near-tie is refused.
+
+`confidence` maps the same evidence to a probability that the pose is right (a logistic model
+fitted on training rooms and synthetic scenes; see docs/VERDICT.md for how its coefficients and
+the thresholds below were chosen). It is reported with every estimate, verified or not.
+
+Public API:
+    VerdictConfig
+    Evidence                       what the estimator measured about its winner
+    judge(evidence, cfg) -> reason "ok" or the first missing piece of evidence
+    confidence(evidence, cfg) -> float in [0, 1]
+    REASONS                        every reason judge can give, in the order it checks them
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+REASONS = ("ok", "too_few_inliers", "too_few_objects", "degenerate_geometry",
+           "verification_failed", "ambiguous")
+
+
+@dataclass
+class VerdictConfig:
+    """min_inliers:         inlier correspondences needed.
+    min_objects:            distinct node matches (objects) among the inliers.
+    min_spread:             m, second principal standard deviation of the inliers (horizontal
+                            spread for dof=4).
+    min_fitness:            after ICP, share of the source points that land on the reference's
+                            footprint that lie on its surfaces (horizontal surfaces left out).
+    min_footprint_share:    share of the source points that land on the reference's footprint:
+                            a pose that puts the views side by side proves nothing.
+    max_ambiguity:          refuse when the best competitor's support reaches this share of the
+                            winner's (support: inlier objects x footprint fitness).
+    competitor_m, competitor_deg: a hypothesis is a competitor when it is at least this far
+                            from the winner (translation, rotation).
+    confidence_weights:     logistic weights of (bias, log(1 + inlier objects), footprint
+                            fitness, footprint share, ambiguity (capped at 1.5), inlier ratio),
+                            fitted by scripts/choose_verdict.py.
+
+    The defaults were chosen on offline replays of the rooms seen in training and of synthetic
+    scenes, never on the held-out room (docs/VERDICT.md); coarse and merged estimates (node
+    centers) ask for 4 objects (register.py)."""
+
+    min_inliers: int = 8
+    min_objects: int = 3
+    min_spread: float = 0.2
+    min_fitness: float = 0.7
+    min_footprint_share: float = 0.2
+    max_ambiguity: float = 0.5
+    competitor_m: float = 1.0
+    competitor_deg: float = 10.0
+    confidence_weights: tuple[float, ...] = (-9.601, 2.138, 13.403, -2.878, -2.265, 2.127)
+
+
+@dataclass
+class Evidence:
+    """inliers / inlier_ratio: inlier correspondences of the winner and their share;
+    objects: distinct node matches among them; spread: m (see VerdictConfig.min_spread);
+    fitness / footprint_share: the verification of the final pose (NaN without clouds);
+    competitor_objects / competitor_fitness: the best competing hypothesis (0 when none);
+    ambiguity: its support over the winner's, in [0, 1+] (0 without competitor)."""
+
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    objects: int = 0
+    spread: float = 0.0
+    fitness: float = float("nan")
+    footprint_share: float = float("nan")
+    competitor_objects: int = 0
+    competitor_fitness: float = 0.0
+    ambiguity: float = 0.0
+
+
+def judge(ev: Evidence, cfg: VerdictConfig, have_clouds: bool) -> str:
+    """"ok", or the first missing piece of evidence (REASONS order)."""
+    if ev.inliers < cfg.min_inliers:
+        return "too_few_inliers"
+    if ev.objects < cfg.min_objects:
+        return "too_few_objects"
+    if ev.spread < cfg.min_spread:
+        return "degenerate_geometry"
+    if have_clouds and not (ev.fitness >= cfg.min_fitness
+                            and ev.footprint_share >= cfg.min_footprint_share):
+        return "verification_failed"
+    if ev.ambiguity >= cfg.max_ambiguity:
+        return "ambiguous"
+    return "ok"
+
+
+def support(objects: int, fitness: float) -> float:
+    """How well a hypothesis is supported: its inlier objects, weighted by how well the clouds
+    agree with it (fitness 1 without clouds)."""
+    return float(objects) * (float(fitness) if np.isfinite(fitness) else 1.0)
+
+
+def confidence(ev: Evidence, cfg: VerdictConfig) -> float:
+    """P(pose right | evidence) from the logistic model of cfg.confidence_weights."""
+    def finite(v):
+        return float(v) if np.isfinite(v) else 0.0
+
+    x = np.array([1.0, np.log1p(ev.objects), finite(ev.fitness), finite(ev.footprint_share),
+                  min(finite(ev.ambiguity), 1.5), finite(ev.inlier_ratio)])
+    w = np.asarray(cfg.confidence_weights, np.float64)
+    return float(1.0 / (1.0 + np.exp(-float(x @ w))))

@@ -1,0 +1,89 @@
+"""Replay suite files: expansion into bags, their tags, one-line refusals, and the summary."""
+import numpy as np
+import pytest
+
+from sgreg_core.bench.replay_suite import SuiteError, load_suite, reliability, summarize
+
+
+def write(tmp_path, text):
+    (tmp_path / "data" / "scans" / "x_scene0007_00").mkdir(parents=True, exist_ok=True)
+    (tmp_path / "data" / "scans" / "x_scene0007_01").mkdir(parents=True, exist_ok=True)
+    p = tmp_path / "suite.yaml"
+    p.write_text(text)
+    return p
+
+
+SUITE = """
+name: t
+data: data
+bag_dir: made
+held_out: [scene0007]
+seeds: [1, 2]
+defaults: {voxel: 0.05}
+walks:
+  slow: {speed: 0.2, opposite: true}
+  fast: {speed: 0.5, opposite: false}
+scans:
+  - scan: scans/x_scene0007_00
+  - {scan: scans/x_scene0007_00, scan_b: scans/x_scene0007_01, gt: gt.json}
+  - synth: {kind: office, rooms: 2, seed: 3}
+"""
+
+
+def test_every_scan_is_made_per_walk_and_seed(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE))
+    assert len(suite.jobs) == 3 * 2 * 2
+    names = {j.name for j in suite.jobs}
+    assert "scene0007_00_slow_s1" in names and "scene0007_00x01_fast_s2" in names
+    cross = [j for j in suite.jobs if j.capture == "cross"]
+    assert len(cross) == 4 and all(j.spec["gt"].endswith("data/gt.json") for j in cross)
+    job = next(j for j in suite.jobs if j.name == "scene0007_00_fast_s2")
+    assert job.spec == {"voxel": 0.05, "speed": 0.5, "opposite": False, "seed": 2,
+                        "scan": str((tmp_path / "data/scans/x_scene0007_00").resolve())}
+    assert job.path == (tmp_path / "made" / job.name).resolve() and job.room == "scene0007"
+    synth = [j for j in suite.jobs if j.capture == "synthetic"]
+    assert len(synth) == 4 and synth[0].synth == {"kind": "office", "rooms": 2, "seed": 3}
+
+
+@pytest.mark.parametrize("text,words", [
+    ("name: t\nscans:\n  - scan: scans/nope\n", "not found"),
+    ("name: t\nscans:\n  - {nothing: 1}\n", "needs 'scan' or 'synth'"),
+    ("name: t\nwhatever: 1\n", "unknown keys"),
+    ("name: t\n", "names no bags"),
+    ("[1, 2", "cannot read"),
+])
+def test_bad_suites_are_refused_in_one_line(tmp_path, text, words):
+    with pytest.raises(SuiteError, match=words):
+        load_suite(write(tmp_path, text))
+
+
+def frame(correct, verified, registrable, confidence):
+    return {"correct": correct, "verified": verified, "success": correct and verified,
+            "registrable": registrable, "confidence": confidence}
+
+
+def report(frames, wrong, links):
+    return {"frames": frames, "wrong_verified": wrong, "links": links, "kb_per_query_frame": None,
+            "coarse_latency_ms": {"median": 10.0}, "dense_latency_ms": {"median": 50.0}}
+
+
+def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE))
+    held, seen = suite.jobs[0].name, suite.jobs[-1].name       # scene0007 and a synthetic one
+    results = {
+        held: report([frame(True, True, True, 0.9), frame(False, False, True, 0.2),
+                      frame(False, False, False, 0.1)], 0,
+                     {"a->b": {"first_registrable_s": 1.0, "first_success_s": 3.0, "time_to_success_s": 2.0}}),
+        seen: report([frame(True, True, True, 0.9), frame(False, True, True, 0.8)], 1,
+                     {"a->b": {"first_registrable_s": 2.0, "first_success_s": None, "time_to_success_s": None}}),
+    }
+    s = summarize(results, suite)
+    assert s["rows"]["all"]["registrable_frames"] == 4
+    assert s["rows"]["all"]["success_rate_registrable"] == 0.5
+    assert s["rows"]["all"]["wrong_verified"] == 1 and s["rows"]["all"]["links_never_registered"] == 1
+    assert s["rows"]["held-out rooms (scene0007)"]["success_rate_registrable"] == 0.5
+    assert s["rows"]["held-out rooms (scene0007)"]["median_time_to_success_s"] == 2.0
+    assert s["rows"]["rooms seen in training"]["wrong_verified"] == 1
+    rel = reliability([f for r in results.values() for f in r["frames"]], bins=2)
+    assert rel["n"] == 5 and rel["bins"][0]["n"] == 2 and rel["bins"][1]["n"] == 3
+    assert np.isclose(rel["bins"][1]["correct"], 2 / 3)
