@@ -32,6 +32,7 @@ PARAMS = [
     Param("min_node_matches", 3, "node matches needed before a dense request", 1, 1000),
     Param("min_coarse_matches", 4, "node matches needed for a coarse estimate", 3, 1000),
     Param("min_request_interval_s", 5.0, "at most one dense request per peer per interval", 0.0, 3600.0),
+    Param("search_request_interval_s", 2.0, "the request interval while no link to the peer is confirmed", 0.0, 3600.0),
     Param("request_timeout_s", 2.0, "an unanswered dense request is retried after this", 0.1, 600.0),
     Param("retry_backoff", 2.0, "each retry waits this factor longer", 1.0, 10.0),
     Param("max_retries", 3, "retries before giving up until the next interval", 0, 100),
@@ -54,7 +55,8 @@ class RegistrationNode(Node):
                                 graph=GraphConfig(voxel_size=p["voxel_size"]))
         reg_cfg = RegistrationConfig(
             min_node_matches=p["min_node_matches"], min_coarse_matches=p["min_coarse_matches"],
-            min_request_interval_s=p["min_request_interval_s"], request_timeout_s=p["request_timeout_s"],
+            min_request_interval_s=p["min_request_interval_s"],
+            search_request_interval_s=p["search_request_interval_s"], request_timeout_s=p["request_timeout_s"],
             retry_backoff=p["retry_backoff"], max_retries=p["max_retries"],
             keep_correspondences=p["keep_correspondences"],
             register=RegistrationConfig().register.with_verdict(min_fitness=p["min_fitness"]),

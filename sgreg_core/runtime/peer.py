@@ -46,7 +46,10 @@ from .messages import DenseRequestMessage, Estimate, GraphMessage
 @dataclass
 class RegistrationConfig:
     """min_node_matches: node matches needed before asking a peer for dense data.
-    min_request_interval_s: at most one dense request per peer per this interval.
+    min_request_interval_s: at most one dense request per peer per this interval once a link to
+        it is confirmed.
+    search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
+        first link, and confirm it, in seconds.
     request_timeout_s: an unanswered request is retried after this, then after
         timeout * retry_backoff^k, up to max_retries; then the link gives up until the next
         interval.
@@ -69,6 +72,7 @@ class RegistrationConfig:
 
     min_node_matches: int = 3
     min_request_interval_s: float = 5.0
+    search_request_interval_s: float = 2.0
     request_timeout_s: float = 2.0
     retry_backoff: float = 2.0
     max_retries: int = 3
@@ -415,7 +419,9 @@ class Registrar:
         """Ask for the points of the peer's matched nodes, rate-limited, one request at a time."""
         if reg.node_matches < self.cfg.min_node_matches or link.pending is not None:
             return None
-        if now - link.last_request_at < self.cfg.min_request_interval_s:
+        interval = (self.cfg.min_request_interval_s if link.confirmed is not None
+                    else self.cfg.search_request_interval_s)
+        if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
         wanted = np.unique(reg.node_pairs[:, 0])   # the peer's graph is the source
