@@ -1,4 +1,5 @@
-"""One ament_python package, sgreg_ros, that also carries the pure library sgreg_core."""
+"""One ament_python package, sgreg_ros, that also carries the pure library sgreg_core and the
+command-line tool sgreg_cli."""
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -11,7 +12,8 @@ setup(
     description="SG-Reg semantic scene-graph registration as ROS 2 multi-agent nodes",
     license="MIT",
     python_requires=">=3.11",
-    packages=find_packages(include=["sgreg_core", "sgreg_core.*", "sgreg_ros", "sgreg_ros.*"]),
+    packages=find_packages(include=["sgreg_core", "sgreg_core.*", "sgreg_ros", "sgreg_ros.*",
+                                    "sgreg_cli", "sgreg_cli.*"]),
     package_data={"sgreg_core": ["weights/*.safetensors", "weights/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
@@ -24,7 +26,7 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "sgreg = sgreg_core.cli:main",
+            "sgreg = sgreg_cli.main:main",
             "agent = sgreg_ros.agent_node:main",
             "registration = sgreg_ros.registration_node:main",
         ],

@@ -12,7 +12,7 @@ import numpy as np
 
 @dataclass
 class InstanceMap:
-    """What a semantic-mapping front-end hands us (DESIGN.md section 3).
+    """What a semantic-mapping front-end hands us (docs/ARCHITECTURE.md ("Contracts")).
 
     points:   (N, 3) float32, metres, z up.
     instance: (N,) int32 instance id per point; ids <= 0 or absent from `labels` are unlabelled.

@@ -12,6 +12,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 
+from sgreg_core.net.model import NodeFeatures
 from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMessage
 from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
 from sgreg_core.types import InstanceMap as CoreInstanceMap
@@ -66,6 +67,25 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
                            scores={i: float(s) for i, s in zip(ids, scores)})
 
 
+def take_instance_map(raw: bytes, take, refuse) -> str | None:
+    """The one map intake of both nodes: decode an InstanceMap and hand it to
+    take(imap, sequence, stamp) (AgentCore.take_map or Peers.take_own_map). Returns None, or
+    the one-line reason the map was refused, counted through refuse(counter, why): bytes that
+    do not decode are "malformed_message", fields that do not fit "bad_instance_map"."""
+    try:
+        msg = decode(raw, InstanceMap)
+    except ConversionError as exc:
+        return refuse("malformed_message", f"instance map refused: {exc}")
+    try:
+        imap = instance_map_from_msg(msg)
+    except ConversionError as exc:
+        return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {exc}")
+    try:
+        return take(imap, int(msg.sequence), stamp_to_sec(msg.header.stamp))
+    except Exception as exc:  # a bug must cost one map, not the node
+        return refuse("internal_error", f"instance map {msg.sequence} failed: {exc!r}")
+
+
 def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, stamp: float) -> InstanceMap:
     msg = InstanceMap()
     msg.header.stamp = sec_to_stamp(stamp)
@@ -88,11 +108,11 @@ def coarse_to_msg(g: GraphMessage, encoding: int) -> CoarseGraph:
     msg.header.frame_id = f"{g.agent_id}/map"
     msg.agent_id, msg.sequence, msg.map_sequence = g.agent_id, int(g.sequence), int(g.map_sequence)
     msg.weights_id = g.weights_id
-    msg.node_ids = array.array("I", np.asarray(g.node_ids, np.uint32).tobytes())
-    msg.centers = array.array("f", np.asarray(g.centers, "<f4").tobytes())
+    msg.node_ids = array.array("I", np.asarray(g.nodes.node_ids, np.uint32).tobytes())
+    msg.centers = array.array("f", np.asarray(g.nodes.centers, "<f4").tobytes())
     msg.extents = array.array("f", np.asarray(g.extents, "<f4").tobytes())
-    payload, scales = pack_features(g.x, encoding)
-    msg.feature_dim = int(g.x.shape[1])
+    payload, scales = pack_features(g.nodes.descriptor, encoding)
+    msg.feature_dim = int(g.nodes.descriptor.shape[1])
     msg.feature_encoding = encoding
     msg.feature_scales = array.array("f", scales.astype("<f4").tobytes())
     msg.features = payload
@@ -109,9 +129,9 @@ def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
     return GraphMessage(agent_id=msg.agent_id, sequence=int(msg.sequence),
                         map_sequence=int(msg.map_sequence), weights_id=msg.weights_id,
                         stamp=stamp_to_sec(msg.header.stamp),
-                        node_ids=np.asarray(msg.node_ids, np.int64),
-                        centers=_f32(msg.centers, n, "centers"),
-                        extents=_f32(msg.extents, n, "extents"), x=x)
+                        nodes=NodeFeatures(node_ids=np.asarray(msg.node_ids, np.int64),
+                                           centers=_f32(msg.centers, n, "centers"), descriptor=x),
+                        extents=_f32(msg.extents, n, "extents"))
 
 
 def dense_to_msg(g: GraphMessage, encoding: int) -> DenseGraph:
@@ -120,7 +140,7 @@ def dense_to_msg(g: GraphMessage, encoding: int) -> DenseGraph:
     msg.header = msg.graph.header
     msg.agent_id, msg.sequence = g.agent_id, int(g.sequence)
     msg.requester, msg.request_sequence = g.requester, int(g.request_sequence)
-    node_ids = np.asarray(g.node_ids, np.uint32)[g.point_node]
+    node_ids = np.asarray(g.nodes.node_ids, np.uint32)[g.point_node]
     msg.points = pack_xyz_id(g.points, node_ids, "node_id", frame_id=msg.header.frame_id,
                              stamp=msg.header.stamp)
     return msg
@@ -134,10 +154,11 @@ def dense_from_msg(msg: DenseGraph) -> GraphMessage:
         points, node_ids = unpack_xyz_id(msg.points, "node_id")
     except PointCloudError as exc:
         raise ConversionError(f"points: {exc}") from None
-    order = np.argsort(g.node_ids)
-    pos = np.searchsorted(g.node_ids[order], node_ids.astype(np.int64))
+    ids = g.nodes.node_ids
+    order = np.argsort(ids)
+    pos = np.searchsorted(ids[order], node_ids.astype(np.int64))
     pos = np.clip(pos, 0, max(g.num_nodes - 1, 0))
-    if g.num_nodes == 0 or not np.array_equal(g.node_ids[order][pos], node_ids.astype(np.int64)):
+    if g.num_nodes == 0 or not np.array_equal(ids[order][pos], node_ids.astype(np.int64)):
         raise ConversionError("points carry node ids that are not in the graph")
     g.sequence = int(msg.sequence)
     g.points, g.point_node = points, order[pos]
@@ -195,8 +216,9 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     msg.node_matches, msg.correspondences, msg.inliers = (
         int(e.node_matches), int(e.correspondences), int(e.inliers))
     msg.inlier_ratio, msg.confidence = float(e.inlier_ratio), float(e.confidence)
-    msg.inlier_objects, msg.ambiguity = int(e.inlier_objects), float(e.ambiguity)
-    msg.fitness = float(e.fitness) if np.isfinite(e.fitness) else 0.0
+    ev = e.registration.evidence
+    msg.inlier_objects, msg.ambiguity = int(ev.objects), float(ev.ambiguity)
+    msg.fitness = float(ev.fitness) if np.isfinite(ev.fitness) else 0.0
     msg.peer_coarse_sequence, msg.peer_dense_sequence = (
         int(e.peer_coarse_sequence), int(e.peer_dense_sequence))
     msg.timing_names = list(e.timing_ms)

@@ -1,11 +1,14 @@
-"""Typed ROS parameters from one table per node: type, default, range and description are
-declared together, values are checked at start, and a bad value stops the node with one clear
-line instead of a traceback."""
+"""Typed ROS parameters declared from the configs' dataclasses: each `param` field
+(sgreg_core/config.py) becomes a parameter of the same name, with its default, description
+and range written once, beside the setting itself. Values are checked at start, and a bad value
+stops the node with one clear line instead of a traceback."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+from sgreg_core.config import node_params
 
 
 class ParameterError(ValueError):
@@ -20,6 +23,33 @@ class Param:
     low: float | None = None
     high: float | None = None
     choices: tuple = ()
+
+
+def params_of(*configs, skip: tuple[str, ...] = ()) -> list[Param]:
+    """The parameters of the `param` fields of the given config dataclasses (names in `skip`
+    left out): what a node declares."""
+    table = [Param(name, *spec) for cls in configs for name, spec in node_params(cls).items()
+             if name not in skip]
+    names = [p.name for p in table]
+    if len(set(names)) != len(names):
+        raise ValueError(f"two configs expose one parameter name: {sorted(names)}")
+    return table
+
+
+def pick(cls, values: dict) -> dict:
+    """The keyword arguments of dataclass `cls` among the parameter values."""
+    return {k: values[k] for k in node_params(cls) if k in values}
+
+
+def check(p: Param, value):
+    """`value` if it suits parameter p (type, range, choices); else ParameterError."""
+    if type(value) is not type(p.default) and not (isinstance(p.default, float) and isinstance(value, int)):
+        raise ParameterError(f"parameter '{p.name}' must be {type(p.default).__name__}, got {value!r}")
+    if p.low is not None and not (p.low <= value <= p.high):
+        raise ParameterError(f"parameter '{p.name}' = {value} is outside [{p.low}, {p.high}]")
+    if p.choices and value not in p.choices:
+        raise ParameterError(f"parameter '{p.name}' = {value!r} is not one of {p.choices}")
+    return float(value) if isinstance(p.default, float) else value
 
 
 def declare_and_read(node, table: list[Param]) -> dict:
@@ -37,13 +67,7 @@ def declare_and_read(node, table: list[Param]) -> dict:
             value = node.declare_parameter(p.name, p.default, desc).value
         except Exception as exc:  # rclpy raises several types for out-of-range / wrong-type values
             raise ParameterError(f"parameter '{p.name}': {exc}") from None
-        if type(value) is not type(p.default) and not (isinstance(p.default, float) and isinstance(value, int)):
-            raise ParameterError(f"parameter '{p.name}' must be {type(p.default).__name__}, got {value!r}")
-        if p.low is not None and not (p.low <= value <= p.high):
-            raise ParameterError(f"parameter '{p.name}' = {value} is outside [{p.low}, {p.high}]")
-        if p.choices and value not in p.choices:
-            raise ParameterError(f"parameter '{p.name}' = {value!r} is not one of {p.choices}")
-        values[p.name] = value
+        values[p.name] = check(p, value)
     return values
 
 

@@ -25,13 +25,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 
 from ..geometry import invert_transform, transform_points, yaw_transform
-from ..instance_map import InstanceMapError, labelled_mask, read_instance_map
-from ..pairs import NoiseConfig, PairConfig, make_pair, node_iou
+from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map
+from ..paths import RESCAN_GT, SCANS, require, resolve
+from ..simulation.noise import NoiseConfig
+from ..simulation.pairs import PairConfig, make_pair, node_iou
 from ..types import InstanceMap
 
 SETTINGS = ("clean", "noisy", "rescan", "different_rooms")
@@ -40,7 +41,8 @@ NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
 
 @dataclass
 class CaseConfig:
-    """scans_dir:        instance map directories of real scans.
+    """scans_dir:        instance map directories of real scans (relative paths start at the
+                         repository, sgreg_core/paths.py).
     scan_prefix:         scans used (picwoon: 50k-point subsamples; mmdet3d duplicates rooms).
     rooms:               tested rooms (scene ids); default the room held out of training.
     held_out_rooms:      rooms the network never saw in training (the others are flagged
@@ -59,12 +61,12 @@ class CaseConfig:
     iou_voxel:           m, voxel of the ground-truth node IoU.
     seed:                seed of every random choice."""
 
-    scans_dir: str = "/work/shared/data/scans"
+    scans_dir: str = SCANS
     scan_prefix: str = "scannet-picwoon_"
     rooms: tuple[str, ...] = ("scene0005",)
     held_out_rooms: tuple[str, ...] = ("scene0005",)
     other_rooms: tuple[str, ...] = ()
-    rescan_gt: str = "/work/shared/data/rescan_gt.json"
+    rescan_gt: str = RESCAN_GT
     n: int = 10
     rescan_seeds: int = 3
     rescan_seen_seeds: int = 1
@@ -99,7 +101,10 @@ def _room(scan: str) -> str:
 
 
 def _scans(cfg: CaseConfig) -> list[str]:
-    root = Path(cfg.scans_dir)
+    try:
+        root = require(cfg.scans_dir, "scans folder")
+    except FileNotFoundError as exc:
+        raise InstanceMapError(str(exc)) from None
     scans = sorted(p.name for p in root.glob(cfg.scan_prefix + "*") if p.is_dir())
     if not scans:
         raise InstanceMapError(f"{root}: no scan directory named {cfg.scan_prefix}*")
@@ -131,7 +136,7 @@ def _view_cases(cfg: CaseConfig, scans: list[str], setting: str) -> list[Case]:
     for k in range(cfg.n):
         rng = np.random.default_rng([cfg.seed, SETTINGS.index(setting), k])
         scan = scans[k % len(scans)]
-        pair = make_pair(_scan(str(Path(cfg.scans_dir) / scan)), _pair_config(cfg, rng, noisy), rng)
+        pair = make_pair(_scan(str(resolve(cfg.scans_dir) / scan)), _pair_config(cfg, rng, noisy), rng)
         out.append(Case(setting, f"{scan}#{k}", pair.src, pair.ref, pair.T_src_ref,
                         pair.gt_node_pairs, pair.gt_iou, _room(scan) in cfg.held_out_rooms))
     return out
@@ -148,7 +153,7 @@ def _gt_nodes(src: InstanceMap, ref: InstanceMap, T: np.ndarray,
 def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     if not cfg.rescan_gt:
         return []
-    entries = json.loads(Path(cfg.rescan_gt).read_text())["pairs"]
+    entries = json.loads(resolve(cfg.rescan_gt).read_text())["pairs"]
     directions = []
     for e in entries:
         if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
@@ -160,8 +165,8 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     directions.sort(key=lambda d: (_room(d[0]) not in cfg.held_out_rooms, d[0], d[1]))
     out = []
     for d, (a, b, T_ab) in enumerate(directions):
-        src0 = _scan(str(Path(cfg.scans_dir) / a))
-        ref = _scan(str(Path(cfg.scans_dir) / b))
+        src0 = _scan(str(resolve(cfg.scans_dir) / a))
+        ref = _scan(str(resolve(cfg.scans_dir) / b))
         pairs, iou = _gt_nodes(src0, ref, T_ab, cfg.iou_voxel)
         held_out = _room(a) in cfg.held_out_rooms
         for s in range(cfg.rescan_seeds if held_out else cfg.rescan_seen_seeds):
@@ -177,7 +182,7 @@ def _different_room_cases(cfg: CaseConfig, tested: list[str], others: list[str])
     for k in range(cfg.n if others else 0):
         rng = np.random.default_rng([cfg.seed, SETTINGS.index("different_rooms"), k])
         a, b = tested[k % len(tested)], others[k % len(others)]
-        root = Path(cfg.scans_dir)
+        root = resolve(cfg.scans_dir)
         view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng, False), rng).src
         ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng, False), rng).ref
         out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,

@@ -27,11 +27,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..baselines import BASELINES, BaselineConfig
+from .baselines import BASELINES, BaselineConfig
 from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success,
                        rre, rte)
 from ..pose import ReferenceCloud
-from ..register import (RegisterConfig, Registration, build_graphs, node_cloud, register_features,
+from ..pipeline import (PipelineConfig, Registration, build_graphs, node_cloud, register_features,
                         register_graphs)
 from .cases import SETTINGS, Case, CaseConfig
 
@@ -42,7 +42,7 @@ METHODS = SGREG_METHODS + tuple(BASELINES)
 @dataclass
 class BenchConfig:
     """cases:          which pairs (see bench.cases.CaseConfig).
-    register:          sgreg's pipeline; its mode is set per method (dense / coarse).
+    pipeline:          sgreg's pipeline; its mode is set per method (dense / coarse).
     baseline:          settings of the classical peers.
     methods:           methods run on every case (subset of METHODS).
     settings:          case settings run (subset of bench.cases.SETTINGS).
@@ -54,7 +54,7 @@ class BenchConfig:
     threads:           torch threads."""
 
     cases: CaseConfig = field(default_factory=CaseConfig)
-    register: RegisterConfig = field(default_factory=RegisterConfig)
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
     methods: tuple[str, ...] = METHODS
     settings: tuple[str, ...] = SETTINGS
@@ -121,15 +121,15 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
     rows = []
     timings: dict = {}
     cpu0 = time.process_time()
-    src_graph, ref_graph = build_graphs(case.src, case.ref, cfg.register, timings)
+    src_graph, ref_graph = build_graphs(case.src, case.ref, cfg.pipeline, timings)
     if "sgreg_dense" in cfg.methods:
-        reg = register_graphs(model, src_graph, ref_graph, replace(cfg.register, mode="dense"),
+        reg = register_graphs(model, src_graph, ref_graph, replace(cfg.pipeline, mode="dense"),
                               timings)
         rows.append(_sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg))
     if "sgreg_coarse" in cfg.methods:
         # a coarse message carries what encode(dense=False) gives; only matching + pose timed
         src, ref = model.encode(src_graph, dense=False), model.encode(ref_graph, dense=False)
-        coarse = replace(cfg.register, mode="coarse")
+        coarse = replace(cfg.pipeline, mode="coarse")
         t0 = time.perf_counter()
         pose = coarse.pose_config()
         reference = ReferenceCloud(node_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)

@@ -34,7 +34,7 @@ Public API:
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -211,7 +211,7 @@ def _cells(name: str, r: dict) -> list[str]:
 
 
 def format_summary(summary: dict) -> str:
-    from ..bandwidth import format_table
+    from .bandwidth import format_table
 
     per_bag = format_table(HEADER, [_cells(n, r) for n, r in summary["bags"].items()])
     overall = format_table(HEADER, [_cells(n, r) for n, r in summary["rows"].items()])

@@ -33,9 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import invert_transform, transform_points, yaw_transform
-from ..instance_map import labelled_mask, read_instance_map
-from ..pairs import NoiseConfig, PairConfig, RegistrationPair, make_pair, node_iou
-from ..scene_graph import GraphConfig, build_scene_graph
+from ..maps.instance_map import labelled_mask, read_instance_map
+from ..paths import RESCAN_GT, SCANS, require, resolve
+from ..simulation.noise import NoiseConfig
+from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
+from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 
 NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
@@ -43,7 +45,8 @@ NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
 
 @dataclass
 class DataConfig:
-    """scans_dir:     real scans (instance map directories, DESIGN.md section 3).
+    """scans_dir:     real scans (instance map directories, docs/ARCHITECTURE.md); relative paths
+                      start at the repository (sgreg_core/paths.py).
     scan_prefix:      scans used (the 50k-point "picwoon" subsamples; others duplicate rooms).
     rescan_gt:        pseudo ground truth between captures of one room ("" to skip rescans).
     val_room:         scene id kept out of training (all its captures) for validation.
@@ -57,9 +60,9 @@ class DataConfig:
     iou_store:        gt node pairs kept down to this IoU (the losses pick their own threshold).
     cache_dir:        root of the pair cache; a hash of this config names the sub-directory."""
 
-    scans_dir: str = "/work/shared/data/scans"
+    scans_dir: str = SCANS
     scan_prefix: str = "scannet-picwoon_"
-    rescan_gt: str = "/work/shared/data/rescan_gt.json"
+    rescan_gt: str = RESCAN_GT
     val_room: str = "scene0005"
     train_pairs: int = 800
     val_pairs: int = 40
@@ -131,7 +134,7 @@ def _read_scan(path: str) -> InstanceMap:
 
 @lru_cache(maxsize=8)
 def _synth_scene(seed: int) -> InstanceMap:
-    from ..synth import SynthConfig, generate_scene
+    from ..simulation.synth import SynthConfig, generate_scene
 
     rng = np.random.default_rng([seed, 7])
     cfg = SynthConfig(kind=("apartment", "office")[int(rng.integers(2))], rooms=int(rng.integers(1, 3)))
@@ -145,7 +148,8 @@ class PairSource:
         if split not in ("train", "val"):
             raise ValueError(f"split must be 'train' or 'val', got {split!r}")
         self.cfg, self.split, self.seed = cfg, split, seed
-        scans = sorted(p.name for p in Path(cfg.scans_dir).glob(cfg.scan_prefix + "*") if p.is_dir())
+        scans = sorted(p.name for p in require(cfg.scans_dir, "scans folder").glob(cfg.scan_prefix + "*")
+                       if p.is_dir())
         in_val = [cfg.val_room in name for name in scans]
         self.scans = [s for s, v in zip(scans, in_val) if v == (split == "val")]
         self.rescans = self._rescan_list(set(self.scans))
@@ -167,9 +171,9 @@ class PairSource:
         return self.size
 
     def _rescan_list(self, scans: set[str]) -> list[tuple[str, str, np.ndarray]]:
-        if not self.cfg.rescan_gt or not Path(self.cfg.rescan_gt).exists():
+        if not self.cfg.rescan_gt or not resolve(self.cfg.rescan_gt).exists():
             return []
-        entries = json.loads(Path(self.cfg.rescan_gt).read_text())["pairs"]
+        entries = json.loads(resolve(self.cfg.rescan_gt).read_text())["pairs"]
         out = []
         for e in entries:
             if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
@@ -221,7 +225,7 @@ class PairSource:
         raise RuntimeError(f"could not cut a {self.split} pair {index} with {cfg.min_matches} matches")
 
     def _scan(self, name: str) -> InstanceMap:
-        return _read_scan(str(Path(self.cfg.scans_dir) / name))
+        return _read_scan(str(resolve(self.cfg.scans_dir) / name))
 
 
 # ---- augmentation ----------------------------------------------------------------------

@@ -11,11 +11,14 @@ top-k entries above a threshold are the point correspondences.
 
 Public API:
     MatchConfig
-    mutual_topk(scores, k) -> bool mask           (..., a, b): top-k in its row and its column
-    log_dual_softmax(desc_a, desc_b) -> (a, b)    log A
-    log_optimal_transport(scores, valid_a, valid_b, dustbin, iters) -> (B, a+1, b+1) log P
-    NodeMatcher(d_in, cfg): descriptor(x), match(desc_a, desc_b) -> (ia, ib, confidence)
-    PointMatcher(cfg): log_transport(z_a, valid_a, z_b, valid_b), match(...) -> (pair, ia, ib, p)
+    mutual_topk(scores, k) -> bool mask           (..., n, m): top-k in its row and its column
+    log_dual_softmax(desc_src, desc_ref) -> (n_src, n_ref)    log A
+    log_optimal_transport(scores, valid_src, valid_ref, dustbin, iters) -> (B, n_src+1, n_ref+1) log P
+    NodeMatcher(d_in, cfg): descriptor(x), match(desc_src, desc_ref) -> (i_src, i_ref, confidence)
+    PointMatcher(cfg): log_transport(z_src, valid_src, z_ref, valid_ref),
+                       match(...) -> (pair, i_src, i_ref, p)
+
+Rows are the source graph's, columns the reference graph's (the pipeline's SRC -> REF).
 """
 from __future__ import annotations
 
@@ -55,34 +58,34 @@ def mutual_topk(scores: torch.Tensor, k: int) -> torch.Tensor:
     return row & col
 
 
-def log_dual_softmax(desc_a: torch.Tensor, desc_b: torch.Tensor) -> torch.Tensor:
+def log_dual_softmax(desc_src: torch.Tensor, desc_ref: torch.Tensor) -> torch.Tensor:
     """log A = log_softmax_rows(S) + log_softmax_cols(S), S = <a_i, b_j> / sqrt(d)."""
-    s = desc_a @ desc_b.T / math.sqrt(desc_a.shape[-1])
+    s = desc_src @ desc_ref.T / math.sqrt(desc_src.shape[-1])
     return s.log_softmax(dim=1) + s.log_softmax(dim=0)
 
 
-def log_optimal_transport(scores: torch.Tensor, valid_a: torch.Tensor, valid_b: torch.Tensor,
+def log_optimal_transport(scores: torch.Tensor, valid_src: torch.Tensor, valid_ref: torch.Tensor,
                           dustbin: torch.Tensor, iters: int) -> torch.Tensor:
-    """Entropic OT with a dustbin, batched: scores (B, a, b) -> log P (B, a+1, b+1).
+    """Entropic OT with a dustbin, batched: scores (B, n_src, n_ref) -> log P (B, n_src+1, n_ref+1).
 
     Each valid point carries mass 1, each dustbin the other side's point count (so that every
     point may go unmatched); padded points carry none. Rows of valid points sum to 1 in P.
     """
-    batch, na, nb = scores.shape
-    bins_a = dustbin.expand(batch, na, 1)
-    bins_b = dustbin.expand(batch, 1, nb)
+    batch, n_src, n_ref = scores.shape
+    bins_src = dustbin.expand(batch, n_src, 1)
+    bins_ref = dustbin.expand(batch, 1, n_ref)
     corner = dustbin.expand(batch, 1, 1)
-    couplings = torch.cat([torch.cat([scores, bins_a], -1), torch.cat([bins_b, corner], -1)], 1)
-    true_ = valid_a.new_ones(batch, 1)
-    rows = torch.cat([valid_a, true_], 1)
-    cols = torch.cat([valid_b, true_], 1)
+    couplings = torch.cat([torch.cat([scores, bins_src], -1), torch.cat([bins_ref, corner], -1)], 1)
+    true_ = valid_src.new_ones(batch, 1)
+    rows = torch.cat([valid_src, true_], 1)
+    cols = torch.cat([valid_ref, true_], 1)
     couplings = couplings.masked_fill(~(rows.unsqueeze(2) & cols.unsqueeze(1)), LOG_ZERO)
 
-    count_a = valid_a.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
-    count_b = valid_b.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
-    norm = -(count_a + count_b).log()
-    log_mu = torch.cat([norm.expand(-1, na).masked_fill(~valid_a, LOG_ZERO), count_b.log() + norm], 1)
-    log_nu = torch.cat([norm.expand(-1, nb).masked_fill(~valid_b, LOG_ZERO), count_a.log() + norm], 1)
+    count_src = valid_src.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
+    count_ref = valid_ref.sum(1, keepdim=True).clamp_min(1).to(scores.dtype)
+    norm = -(count_src + count_ref).log()
+    log_mu = torch.cat([norm.expand(-1, n_src).masked_fill(~valid_src, LOG_ZERO), count_ref.log() + norm], 1)
+    log_nu = torch.cat([norm.expand(-1, n_ref).masked_fill(~valid_ref, LOG_ZERO), count_src.log() + norm], 1)
 
     u, v = torch.zeros_like(log_mu), torch.zeros_like(log_nu)
     for _ in range(iters):
@@ -100,15 +103,15 @@ class NodeMatcher(nn.Module):
     def descriptor(self, x: torch.Tensor) -> torch.Tensor:
         return self.proj(x)
 
-    def match(self, desc_a: torch.Tensor, desc_b: torch.Tensor):
-        """-> index in a, index in b, confidence A_ij of every node match."""
-        if desc_a.shape[0] == 0 or desc_b.shape[0] == 0:
+    def match(self, desc_src: torch.Tensor, desc_ref: torch.Tensor):
+        """-> index in src, index in ref, confidence A_ij of every node match."""
+        if desc_src.shape[0] == 0 or desc_ref.shape[0] == 0:
             empty = torch.zeros(0, dtype=torch.long)
             return empty, empty, torch.zeros(0)
-        log_a = log_dual_softmax(desc_a, desc_b)
-        keep = mutual_topk(log_a, self.cfg.node_topk) & (log_a > math.log(self.cfg.node_threshold))
-        ia, ib = keep.nonzero(as_tuple=True)
-        return ia, ib, log_a[ia, ib].exp()
+        log_A = log_dual_softmax(desc_src, desc_ref)
+        keep = mutual_topk(log_A, self.cfg.node_topk) & (log_A > math.log(self.cfg.node_threshold))
+        i_src, i_ref = keep.nonzero(as_tuple=True)
+        return i_src, i_ref, log_A[i_src, i_ref].exp()
 
 
 class PointMatcher(nn.Module):
@@ -118,19 +121,19 @@ class PointMatcher(nn.Module):
         self.dustbin = nn.Parameter(torch.tensor(1.0))
         self.log_scale = nn.Parameter(torch.tensor(math.log(10.0)))
 
-    def log_transport(self, z_a, valid_a, z_b, valid_b) -> torch.Tensor:
+    def log_transport(self, z_src, valid_src, z_ref, valid_ref) -> torch.Tensor:
         """Per matched node pair: z (B, K, d_z), valid (B, K) -> log P (B, K+1, K+1)."""
-        cos = torch.einsum("bkd,bld->bkl", F.normalize(z_a, dim=-1), F.normalize(z_b, dim=-1))
+        cos = torch.einsum("bkd,bld->bkl", F.normalize(z_src, dim=-1), F.normalize(z_ref, dim=-1))
         scores = cos * self.log_scale.exp()
-        return log_optimal_transport(scores, valid_a, valid_b, self.dustbin, self.cfg.sinkhorn_iters)
+        return log_optimal_transport(scores, valid_src, valid_ref, self.dustbin, self.cfg.sinkhorn_iters)
 
-    def match(self, z_a, valid_a, z_b, valid_b):
-        """-> pair index, point index in a, point index in b, transport mass of each match."""
-        if z_a.shape[0] == 0:
+    def match(self, z_src, valid_src, z_ref, valid_ref):
+        """-> pair index, point index in src, point index in ref, transport mass of each match."""
+        if z_src.shape[0] == 0:
             empty = torch.zeros(0, dtype=torch.long)
             return empty, empty, empty, torch.zeros(0)
-        log_p = self.log_transport(z_a, valid_a, z_b, valid_b)[:, :-1, :-1]
+        log_p = self.log_transport(z_src, valid_src, z_ref, valid_ref)[:, :-1, :-1]
         keep = mutual_topk(log_p, self.cfg.point_topk) & (log_p > math.log(self.cfg.point_threshold))
-        keep &= valid_a.unsqueeze(2) & valid_b.unsqueeze(1)
-        pair, ia, ib = keep.nonzero(as_tuple=True)
-        return pair, ia, ib, log_p[pair, ia, ib].exp()
+        keep &= valid_src.unsqueeze(2) & valid_ref.unsqueeze(1)
+        pair, i_src, i_ref = keep.nonzero(as_tuple=True)
+        return pair, i_src, i_ref, log_p[pair, i_src, i_ref].exp()

@@ -11,7 +11,7 @@ Runtime API (numpy in, numpy out; eval mode, no grad):
     model.encode(graph, dense=True) -> NodeFeatures
     model.match_coarse(src, ref) -> NodeMatches
     model.match_dense(src, ref) -> DenseMatches
-    model.point_features(points, valid, centers, x) -> Z   (a peer's dense message: its points,
+    model.point_features(points, valid, centers, descriptor) -> Z   (a peer's dense message: its points,
         centers and descriptors give the same Z its own encode() would)
 Training uses model.prepare(graph, ...) -> GraphInput and model(GraphInput) -> Encoded.
 
@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from ..types import SceneGraph
-from .config import from_dict, to_dict
+from ..config import from_dict, to_dict
 from .matching import MatchConfig, NodeMatcher, PointMatcher
 from .node_encoder import NodeEncoder, NodeEncoderConfig
 from .shape import PointEncoder, ShapeConfig, ShapeEncoder, sample_node_points
@@ -94,18 +94,19 @@ class Encoded:
 
 @dataclass
 class NodeFeatures:
-    """What an agent sends about its graph. Coarse: x + centers; dense adds points, valid, z."""
+    """What the network makes of a graph. Coarse: descriptors + centers (what a coarse message
+    carries); dense adds the sampled points, their validity and point features z."""
 
     node_ids: np.ndarray               # (n,) int64
     centers: np.ndarray                # (n, 3) float32
-    x: np.ndarray                      # (n, d_match) node descriptors
+    descriptor: np.ndarray             # (n, d_match) node descriptors
     points: np.ndarray | None = None   # (n, K, 3) float32 sampled node points, graph frame
     valid: np.ndarray | None = None    # (n, K) bool, False for padding
     z: np.ndarray | None = None        # (n, K, d_z) point features
 
     @property
     def num_nodes(self) -> int:
-        return int(self.x.shape[0])
+        return int(self.descriptor.shape[0])
 
     @property
     def is_dense(self) -> bool:
@@ -224,30 +225,30 @@ class SGRegModel(nn.Module):
         inp = self.prepare(graph, timings=timings)
         out = self(inp, timings=timings)
         feats = NodeFeatures(node_ids=np.asarray(graph.node_ids, dtype=np.int64),
-                             centers=inp.centers.numpy(), x=out.descriptor.numpy())
+                             centers=inp.centers.numpy(), descriptor=out.descriptor.numpy())
         if dense:
             feats.points, feats.valid, feats.z = inp.points.numpy(), inp.valid.numpy(), out.z.numpy()
         return feats
 
     @torch.no_grad()
     def point_features(self, points: np.ndarray, valid: np.ndarray, centers: np.ndarray,
-                       x: np.ndarray) -> np.ndarray:
+                       descriptor: np.ndarray) -> np.ndarray:
         """Z of sampled node points (n, K, 3) in the graph frame, from the node centers and
-        descriptors x (as a dense message carries them) -> (n, K, d_z) float32."""
+        descriptors (as a dense message carries them) -> (n, K, d_z) float32."""
         pts, mask, ctr = _f32(points), torch.as_tensor(np.asarray(valid, bool)), _f32(centers)
         local = _local(pts, mask, ctr)
         shape, hidden = self.shape(local, mask)
-        return self.point_encoder(local, mask, hidden, shape, ctr, _f32(x)).numpy()
+        return self.point_encoder(local, mask, hidden, shape, ctr, _f32(descriptor)).numpy()
 
     @torch.no_grad()
     def match_coarse(self, src: NodeFeatures, ref: NodeFeatures,
                      timings: dict | None = None) -> NodeMatches:
         with _timed(timings, "node_match"):
-            ia, ib, conf = self.node_matcher.match(_f32(src.x), _f32(ref.x))
-            ia, ib = ia.numpy(), ib.numpy()
-            return NodeMatches(src_idx=ia, ref_idx=ib, score=conf.numpy(),
-                               src_xyz=np.asarray(src.centers, np.float32)[ia],
-                               ref_xyz=np.asarray(ref.centers, np.float32)[ib])
+            i_src, i_ref, conf = self.node_matcher.match(_f32(src.descriptor), _f32(ref.descriptor))
+            i_src, i_ref = i_src.numpy(), i_ref.numpy()
+            return NodeMatches(src_idx=i_src, ref_idx=i_ref, score=conf.numpy(),
+                               src_xyz=np.asarray(src.centers, np.float32)[i_src],
+                               ref_xyz=np.asarray(ref.centers, np.float32)[i_ref])
 
     @torch.no_grad()
     def match_dense(self, src: NodeFeatures, ref: NodeFeatures,
@@ -256,15 +257,15 @@ class SGRegModel(nn.Module):
             raise ValueError("match_dense needs dense features (encode(graph, dense=True))")
         nodes = self.match_coarse(src, ref, timings)
         with _timed(timings, "point_match"):
-            ia, ib = torch.from_numpy(nodes.src_idx), torch.from_numpy(nodes.ref_idx)
-            valid_a = torch.as_tensor(np.asarray(src.valid, bool))[ia]
-            valid_b = torch.as_tensor(np.asarray(ref.valid, bool))[ib]
-            pair, pa, pb, mass = self.point_matcher.match(_f32(src.z)[ia], valid_a,
-                                                          _f32(ref.z)[ib], valid_b)
-            pair, pa, pb = pair.numpy(), pa.numpy(), pb.numpy()
+            i_src, i_ref = torch.from_numpy(nodes.src_idx), torch.from_numpy(nodes.ref_idx)
+            valid_src = torch.as_tensor(np.asarray(src.valid, bool))[i_src]
+            valid_ref = torch.as_tensor(np.asarray(ref.valid, bool))[i_ref]
+            pair, p_src, p_ref, mass = self.point_matcher.match(_f32(src.z)[i_src], valid_src,
+                                                                _f32(ref.z)[i_ref], valid_ref)
+            pair, p_src, p_ref = pair.numpy(), p_src.numpy(), p_ref.numpy()
             points = PointMatches(
-                src_xyz=np.asarray(src.points, np.float32)[nodes.src_idx[pair], pa],
-                ref_xyz=np.asarray(ref.points, np.float32)[nodes.ref_idx[pair], pb],
+                src_xyz=np.asarray(src.points, np.float32)[nodes.src_idx[pair], p_src],
+                ref_xyz=np.asarray(ref.points, np.float32)[nodes.ref_idx[pair], p_ref],
                 score=mass.numpy(), node_match=pair)
         return DenseMatches(nodes=nodes, points=points)
 

@@ -30,7 +30,7 @@ import torch
 import yaml
 from tqdm import tqdm
 
-from .config import to_dict
+from ..config import to_dict
 from .dataset import DataConfig, GraphPair, PairSource, augment
 from .evaluate import evaluate_pairs, summarize
 from .losses import LossConfig, pair_losses

@@ -14,7 +14,9 @@ along three lines, each measured by the estimator (pose/estimator.py):
 
 `confidence` maps the same evidence to a probability that the pose is right (a logistic model
 fitted on training rooms and synthetic scenes; see docs/VERDICT.md for how its coefficients and
-the thresholds below were chosen). It is reported with every estimate, verified or not.
+the thresholds below were chosen). It is reported with every estimate, verified or not, and
+an estimate checked against clouds must also reach `min_confidence`: many agreeing objects may
+make up for a fitness a little under what few objects would need.
 
 Public API:
     VerdictConfig
@@ -29,8 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import param
+
 REASONS = ("ok", "too_few_inliers", "too_few_objects", "degenerate_geometry",
-           "verification_failed", "ambiguous")
+           "verification_failed", "ambiguous", "low_confidence")
 
 
 @dataclass
@@ -45,6 +49,7 @@ class VerdictConfig:
                             a pose that puts the views side by side proves nothing.
     max_ambiguity:          refuse when the best competitor's support reaches this share of the
                             winner's (support: inlier objects x footprint fitness).
+    min_confidence:         an estimate checked against clouds needs at least this confidence.
     competitor_m, competitor_deg: a hypothesis is a competitor when it is at least this far
                             from the winner (translation, rotation).
     confidence_weights:     logistic weights of (bias, log(1 + inlier objects), footprint
@@ -53,14 +58,17 @@ class VerdictConfig:
 
     The defaults were chosen on offline replays of the rooms seen in training and of synthetic
     scenes, never on the held-out room (docs/VERDICT.md); coarse and merged estimates (node
-    centers) ask for 4 objects (register.py)."""
+    centers) ask for 4 objects (pipeline.py)."""
 
     min_inliers: int = 8
     min_objects: int = 3
     min_spread: float = 0.2
-    min_fitness: float = 0.7
+    min_fitness: float = param(0.6, "after ICP, the share of the peer's points over the own "
+                               "footprint that must lie on own surfaces to verify", 0.05, 1.0)
     min_footprint_share: float = 0.2
     max_ambiguity: float = 0.5
+    min_confidence: float = param(0.9, "an estimate checked against clouds needs at least this "
+                                  "confidence (P(right | evidence))", 0.0, 1.0)
     competitor_m: float = 1.0
     competitor_deg: float = 10.0
     confidence_weights: tuple[float, ...] = (-9.601, 2.138, 13.403, -2.878, -2.265, 2.127)
@@ -98,6 +106,8 @@ def judge(ev: Evidence, cfg: VerdictConfig, have_clouds: bool) -> str:
         return "verification_failed"
     if ev.ambiguity >= cfg.max_ambiguity:
         return "ambiguous"
+    if have_clouds and confidence(ev, cfg) < cfg.min_confidence:
+        return "low_confidence"
     return "ok"
 
 

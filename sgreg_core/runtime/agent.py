@@ -1,16 +1,21 @@
-"""An agent's own side: instance map -> scene graph -> node features, and the coarse and dense
-messages made from them. Encoding happens once per map update, not per message."""
+"""An agent's own side: instance map -> scene graph -> node features, the coarse and dense
+messages made from them, and the answers to dense requests. Encoding happens once per map
+update, not per message. Both nodes of an agent take their maps through `take_map` and count
+every refusal in `counters` (one table per node, which the node publishes as diagnostics).
+"""
 from __future__ import annotations
 
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..instance_map import validate_instance_map
+from ..config import param
+from ..maps.instance_map import validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
 from ..pose import PoseConfig, ReferenceCloud
-from ..scene_graph import GraphConfig, build_scene_graph
+from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 from .messages import DenseRequestMessage, GraphMessage, graph_digest
 
@@ -23,9 +28,10 @@ class AgentConfig:
     dense_min_interval_s: at most one dense answer per requester per this interval."""
 
     name: str = "a"
-    min_nodes: int = 3
-    max_points_in_map: int = 2_000_000
-    dense_min_interval_s: float = 1.0
+    min_nodes: int = param(3, "graphs with fewer nodes are neither sent nor registered", 1, 1000)
+    max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
+    dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval",
+                                        0.0, 3600.0)
     graph: GraphConfig = field(default_factory=GraphConfig)
 
 
@@ -46,7 +52,7 @@ class AgentCore:
         self.timing_ms: dict = {}
         self._reference: tuple[tuple, ReferenceCloud] | None = None
         self._last_answer: dict[str, float] = {}   # requester -> time of the last dense answer
-        self.dense_sent = 0
+        self.counters: Counter = Counter()            # refusals and messages sent, by name
 
     def warm_up(self) -> None:
         """Load the text encoder now: its first use takes seconds, which would otherwise
@@ -56,6 +62,23 @@ class AgentCore:
     @property
     def ready(self) -> bool:
         return self.features is not None
+
+    def refuse(self, counter: str, why: str) -> str:
+        """Count a refused input; returns the one-line reason for the log."""
+        self.counters[counter] += 1
+        return why
+
+    def take_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> str | None:
+        """A new instance map from the agent's own front end: None when it became the agent's
+        map, else the one-line reason it was refused (counted): the same sequence again, or a
+        map update_map refuses."""
+        if self.ready and map_sequence == self.map_sequence:
+            return self.refuse("duplicate_map", f"instance map {map_sequence} received twice; ignored")
+        try:
+            self.update_map(imap, map_sequence, stamp)
+        except AgentInputError as exc:
+            return self.refuse("bad_instance_map", f"instance map {map_sequence} refused: {exc}")
+        return None
 
     def update_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> SceneGraph:
         """Rebuild graph and features from a new instance map; raises AgentInputError."""
@@ -85,50 +108,62 @@ class AgentCore:
         self.graph = graph
         self.map_sequence, self.stamp, self.timing_ms = map_sequence, stamp, timings
 
+    def broadcast(self) -> GraphMessage:
+        """The next coarse graph to publish (its sequence counts the coarse graphs sent)."""
+        self.counters["coarse_sent"] += 1
+        return self.coarse_message(self.counters["coarse_sent"])
+
     def coarse_message(self, sequence: int) -> GraphMessage:
-        f, g = self.features, self.graph
+        f = self.features
         return GraphMessage(agent_id=self.cfg.name, sequence=sequence,
                             map_sequence=self.map_sequence, weights_id=self.weights_id,
-                            stamp=self.stamp, node_ids=f.node_ids, centers=f.centers,
-                            extents=np.asarray(g.extents, np.float32), x=f.x)
+                            stamp=self.stamp,
+                            nodes=NodeFeatures(node_ids=f.node_ids, centers=f.centers,
+                                               descriptor=f.descriptor),
+                            extents=np.asarray(self.graph.extents, np.float32))
 
     def dense_message(self, sequence: int, node_ids: np.ndarray | None = None,
                       requester: str = "", request_sequence: int = 0) -> GraphMessage:
         """Coarse content plus the sampled points of the requested nodes (all when empty)."""
         msg = self.coarse_message(sequence)
+        f = self.features
         keep = np.ones(msg.num_nodes, bool)
         if node_ids is not None and len(node_ids):
-            keep = np.isin(msg.node_ids, np.asarray(node_ids, np.int64))
+            keep = np.isin(f.node_ids, np.asarray(node_ids, np.int64))
         idx = np.flatnonzero(keep)
-        f = self.features
         valid = f.valid[idx]
         node_of_point = np.broadcast_to(np.arange(idx.size)[:, None], valid.shape)[valid]
-        msg.node_ids, msg.centers, msg.extents, msg.x = (
-            msg.node_ids[idx], msg.centers[idx], msg.extents[idx], msg.x[idx])
+        msg.nodes = NodeFeatures(node_ids=f.node_ids[idx], centers=f.centers[idx],
+                                 descriptor=f.descriptor[idx])
+        msg.extents = msg.extents[idx]
         msg.points = f.points[idx][valid].astype(np.float32)
         msg.point_node = node_of_point.astype(np.int64)
         msg.requester, msg.request_sequence = requester, request_sequence
         return msg
 
-    def answer_request(self, req: DenseRequestMessage, now: float) -> tuple[GraphMessage | None, str, str]:
+    def answer_request(self, req: DenseRequestMessage, now: float) -> tuple[GraphMessage | None, str]:
         """The dense answer to a peer's request, or why there is none.
 
-        Returns (message, "", "") or (None, counter, one-line reason): a request for another
-        agent, from other weights, before any map, or within dense_min_interval_s of the last
-        answer to the same requester is not answered."""
+        Returns (message, "") or (None, one-line reason, counted): a request for another agent,
+        from other weights, before any map, or within dense_min_interval_s of the last answer
+        to the same requester is not answered."""
         if req.to_agent != self.cfg.name:
-            return None, "request_not_for_me", f"dense request for '{req.to_agent}' on {self.cfg.name}'s topic; ignored"
+            return None, self.refuse("request_not_for_me", f"dense request for '{req.to_agent}' on "
+                                     f"{self.cfg.name}'s topic; ignored")
         if req.weights_id != self.weights_id:
-            return None, "request_other_weights", (f"dense request from {req.from_agent} runs weights "
-                                                   f"{req.weights_id}, this agent {self.weights_id}; not answered")
+            return None, self.refuse("request_other_weights", f"dense request from {req.from_agent} runs "
+                                     f"weights {req.weights_id}, this agent {self.weights_id}; not answered")
         if not self.ready:
-            return None, "request_before_map", f"dense request from {req.from_agent} before any map; not answered"
+            return None, self.refuse("request_before_map", f"dense request from {req.from_agent} "
+                                     "before any map; not answered")
         if now - self._last_answer.get(req.from_agent, -np.inf) < self.cfg.dense_min_interval_s:
-            return None, "request_rate_limited", (f"dense request {req.sequence} from {req.from_agent} within "
-                                                  f"{self.cfg.dense_min_interval_s} s of the last answer; not answered")
+            return None, self.refuse("request_rate_limited", f"dense request {req.sequence} from "
+                                     f"{req.from_agent} within {self.cfg.dense_min_interval_s} s of the "
+                                     "last answer; not answered")
         self._last_answer[req.from_agent] = now
-        self.dense_sent += 1
-        return self.dense_message(self.dense_sent, req.node_ids, req.from_agent, req.sequence), "", ""
+        self.counters["dense_sent"] += 1
+        return self.dense_message(self.counters["dense_sent"], req.node_ids, req.from_agent,
+                                  req.sequence), ""
 
     def own_cloud(self) -> np.ndarray:
         """Every (voxelised) node point of the own graph: the verification cloud."""

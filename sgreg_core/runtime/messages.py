@@ -1,12 +1,19 @@
-"""Decoded coarse/dense graph messages: what one agent tells another, as numpy arrays.
+"""What one agent tells another, and what it publishes, as plain numpy types.
 
-The ROS layer converts sgreg_msgs to and from these; everything else works on them."""
+The ROS layer converts sgreg_msgs to and from these; everything else works on them. A graph
+message wraps the node features the network made (net.model.NodeFeatures: ids, centers,
+descriptors), and an estimate wraps the registration the pipeline made (pipeline.Registration)
+with what the link decided about it.
+"""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+from ..net.model import NodeFeatures
+from ..pipeline import Registration
 
 
 def graph_digest(node_ids: np.ndarray, centers: np.ndarray) -> str:
@@ -21,10 +28,13 @@ def graph_digest(node_ids: np.ndarray, centers: np.ndarray) -> str:
 class GraphMessage:
     """A CoarseGraph, or the content of a DenseGraph when `points` is set.
 
-    x:               (n, d) float32 node descriptors (decoded from the wire encoding).
-    centers/extents: (n, 3) float32, sender's map frame.
+    nodes:           node ids, centers (n, 3) and descriptors (n, d) float32 (decoded from the
+                     wire encoding), sender's map frame; no points, valid or z (a receiver
+                     computes those from `points`).
+    extents:         (n, 3) float32 box extents.
     points:          (P, 3) float32 node points (dense only), sender's map frame.
     point_node:      (P,) index into the node arrays of each point (dense only).
+    requester, request_sequence: the request a dense message answers.
     """
 
     agent_id: str
@@ -32,10 +42,8 @@ class GraphMessage:
     map_sequence: int
     weights_id: str
     stamp: float
-    node_ids: np.ndarray
-    centers: np.ndarray
+    nodes: NodeFeatures
     extents: np.ndarray
-    x: np.ndarray
     points: np.ndarray | None = None
     point_node: np.ndarray | None = None
     requester: str = ""
@@ -43,7 +51,7 @@ class GraphMessage:
 
     @property
     def num_nodes(self) -> int:
-        return int(self.node_ids.shape[0])
+        return int(self.nodes.node_ids.shape[0])
 
     @property
     def is_dense(self) -> bool:
@@ -51,7 +59,7 @@ class GraphMessage:
 
     @property
     def digest(self) -> str:
-        return graph_digest(self.node_ids, self.centers)
+        return graph_digest(self.nodes.node_ids, self.nodes.centers)
 
 
 @dataclass
@@ -66,28 +74,52 @@ class DenseRequestMessage:
 
 @dataclass
 class Estimate:
-    """One registration estimate T_agent^peer (maps the agent's map into the peer's), as the
-    registration node publishes it. verified: the transform may be acted on (the verdict
-    passed and the link is confirmed); reason: "ok" or why not; confidence: P(T right |
-    evidence); inlier_objects / fitness / ambiguity: the verdict's evidence (all of it in
-    `evidence`, pose.verdict.Evidence as a dict); link: the peer link's state after this
-    estimate ("none", "candidate", "confirmed")."""
+    """One estimate T_agent^peer (maps the agent's map into the peer's) as the registration node
+    publishes it: the pipeline's registration (peer graph as source, own graph as reference)
+    and what the link made of it.
+
+    T:               T_agent^peer, the inverse of registration.T.
+    verified:        the transform may be acted on (the verdict passed and the link is
+                     confirmed); reason: "ok" or why not (the verdict's reason or the link's).
+    link:            the peer link's state after this estimate ("none", "candidate", "confirmed").
+    peer_coarse_sequence / peer_dense_sequence: the peer's messages it was made from.
+    timing_ms:       milliseconds per stage, "total" from message in to estimate out."""
 
     peer_id: str
     T: np.ndarray
     verified: bool
-    mode: str                 # "coarse" | "dense" | "merged"
     reason: str
-    node_matches: int
-    correspondences: int
-    inliers: int
-    inlier_ratio: float
-    confidence: float
+    link: str
+    registration: Registration
     peer_coarse_sequence: int
     peer_dense_sequence: int
     timing_ms: dict
-    inlier_objects: int = 0
-    fitness: float = float("nan")
-    ambiguity: float = 0.0
-    link: str = "none"
-    evidence: dict = field(default_factory=dict)
+
+    @property
+    def mode(self) -> str:
+        return self.registration.mode
+
+    @property
+    def node_matches(self) -> int:
+        return self.registration.node_matches
+
+    @property
+    def correspondences(self) -> int:
+        return self.registration.correspondences
+
+    @property
+    def inliers(self) -> int:
+        return self.registration.inliers
+
+    @property
+    def inlier_ratio(self) -> float:
+        return self.registration.inlier_ratio
+
+    @property
+    def confidence(self) -> float:
+        return self.registration.confidence
+
+    @property
+    def evidence(self) -> dict:
+        """The verdict's evidence (pose.verdict.Evidence) as a dict."""
+        return dict(vars(self.registration.evidence))

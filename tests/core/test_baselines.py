@@ -3,7 +3,7 @@ room and claims success; each refuses (or at least does not claim) on a cloud to
 import numpy as np
 import pytest
 
-from sgreg_core.baselines import BASELINES, BaselineConfig
+from sgreg_core.bench.baselines import BASELINES, BaselineConfig
 from sgreg_core.pose import apply_T, make_T, yaw_rotation
 
 

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from sgreg_core.cli import main
+from sgreg_cli.main import main
 
 
 def test_synth_graph_pairs(tmp_path, capsys):
@@ -38,3 +38,19 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv):
     assert main([a.format(tmp=tmp_path) for a in argv]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("sgreg ") and "Traceback" not in err
+
+
+def test_the_command_table_comes_from_the_command_modules(capsys, monkeypatch):
+    from sgreg_cli import commands
+
+    monkeypatch.setenv("COLUMNS", "300")   # one line per command in the help
+    from sgreg_cli.main import command_modules
+
+    found, broken = command_modules()
+    assert not broken
+    modules = {m.name for m in __import__("pkgutil").iter_modules(commands.__path__)}
+    assert len(found) == len(modules) and {"register", "bench-replay", "make-bag"} <= set(found)
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out and module.HELP in out for name, module in found.items())
+    assert main(["no-such-command"]) == 2

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from sgreg_core.instance_map import (InstanceMapError, labelled_mask, read_instance_map, select_points,
+from sgreg_core.maps.instance_map import (InstanceMapError, labelled_mask, read_instance_map, select_points,
                                      write_instance_map)
 from sgreg_core.types import InstanceMap
 

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
-from sgreg_core import cli
-from sgreg_core.instance_map import write_instance_map
+from sgreg_cli import main as cli
+from sgreg_core.maps.instance_map import write_instance_map
 from sgreg_core.net import ModelConfig, SGRegModel, save_model
 from sgreg_core.net import text as text_module
 from sgreg_core.net.testing import _hashed_embed
-from sgreg_core.synth import SynthConfig, generate_scene
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 
 @pytest.fixture()

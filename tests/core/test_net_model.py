@@ -36,13 +36,13 @@ def test_encode_shapes_and_dtypes(text):
     graph = toy_graph(np.random.default_rng(0), n=15)
     cfg = model.cfg
     coarse = model.encode(graph, dense=False)
-    assert coarse.x.shape == (15, cfg.match.d_match) and coarse.x.dtype == np.float32
+    assert coarse.descriptor.shape == (15, cfg.match.d_match) and coarse.descriptor.dtype == np.float32
     assert coarse.centers.shape == (15, 3) and not coarse.is_dense
     dense = model.encode(graph)
     k = cfg.shape.points_per_node
     assert dense.points.shape == (15, k, 3) and dense.z.shape == (15, k, cfg.shape.d_z)
     assert dense.valid.sum(1).tolist() == [min(len(p), k) for p in graph.points]
-    assert np.array_equal(coarse.x, dense.x)
+    assert np.array_equal(coarse.descriptor, dense.descriptor)
     assert np.array_equal(dense.node_ids, graph.node_ids)
 
 
@@ -51,10 +51,10 @@ def test_encode_is_deterministic_and_4dof_invariant(text):
     rng = np.random.default_rng(1)
     graph = toy_graph(rng, n=20)
     a, b = model.encode(graph), model.encode(graph)
-    assert np.array_equal(a.x, b.x) and np.array_equal(a.z, b.z)
+    assert np.array_equal(a.descriptor, b.descriptor) and np.array_equal(a.z, b.z)
     T = yaw_transform(rng.uniform(-np.pi, np.pi), rng.uniform(-10, 10, 3))
     c = model.encode(moved_graph(graph, T, rng, jitter=0.0))
-    np.testing.assert_allclose(a.x, c.x, atol=1e-4)
+    np.testing.assert_allclose(a.descriptor, c.descriptor, atol=1e-4)
     np.testing.assert_allclose(a.z, c.z, atol=1e-4)
     assert np.array_equal(a.valid, c.valid)
     np.testing.assert_allclose(a.points[a.valid] @ T[:3, :3].T + T[:3, 3], c.points[c.valid], atol=1e-4)
@@ -65,9 +65,9 @@ def test_point_features_from_a_dense_message_equal_encode(text):
     model = _model(text)
     feats = model.encode(toy_graph(np.random.default_rng(7), n=12))
     z = model.point_features(feats.points.astype(np.float16), feats.valid,
-                             feats.centers, feats.x.astype(np.float16))
+                             feats.centers, feats.descriptor.astype(np.float16))
     np.testing.assert_allclose(z, feats.z, atol=5e-2)
-    np.testing.assert_allclose(model.point_features(feats.points, feats.valid, feats.centers, feats.x),
+    np.testing.assert_allclose(model.point_features(feats.points, feats.valid, feats.centers, feats.descriptor),
                                feats.z, atol=1e-5)
 
 
@@ -84,7 +84,7 @@ def test_ablation_variants_run(text, overrides):
     model = _model(text, **overrides)
     graph = toy_graph(np.random.default_rng(2), n=12)
     feats = model.encode(graph)
-    assert feats.x.shape == (12, model.cfg.match.d_match)
+    assert feats.descriptor.shape == (12, model.cfg.match.d_match)
     model.match_dense(feats, feats)
 
 
@@ -94,9 +94,9 @@ def test_empty_and_tiny_graphs(text):
                        centers=np.zeros((0, 3), np.float32), extents=np.zeros((0, 3), np.float32),
                        points=[], edges=np.zeros((0, 2), np.int64), structural=np.zeros(0, bool))
     e = model.encode(empty)
-    assert e.x.shape == (0, model.cfg.match.d_match)
+    assert e.descriptor.shape == (0, model.cfg.match.d_match)
     g = model.encode(toy_graph(np.random.default_rng(3), n=1))
-    assert np.isfinite(g.x).all()
+    assert np.isfinite(g.descriptor).all()
     dm = model.match_dense(e, g)
     assert len(dm.nodes) == 0 and len(dm.points) == 0
 
@@ -139,7 +139,7 @@ def test_float16_features_match_like_float32(text):
     model = _model(text)
     feats = model.encode(toy_graph(np.random.default_rng(5), n=10))
     half = type(feats)(node_ids=feats.node_ids, centers=feats.centers.astype(np.float16),
-                       x=feats.x.astype(np.float16), points=feats.points.astype(np.float16),
+                       descriptor=feats.descriptor.astype(np.float16), points=feats.points.astype(np.float16),
                        valid=feats.valid, z=feats.z.astype(np.float16))
     a, b = model.match_dense(feats, feats), model.match_dense(half, half)
     assert np.array_equal(a.nodes.src_idx, b.nodes.src_idx)

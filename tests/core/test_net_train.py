@@ -7,14 +7,14 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sgreg_core.instance_map import write_instance_map
+from sgreg_core.maps.instance_map import write_instance_map
 from sgreg_core.net import load_model
 from sgreg_core.net import train as train_module
-from sgreg_core.net.config import apply_overrides, from_dict
+from sgreg_core.config import apply_overrides, from_dict
 from sgreg_core.net.dataset import PairSource, augment
 from sgreg_core.net.testing import hashed_text_encoder
 from sgreg_core.net.train import TrainConfig, train
-from sgreg_core.synth import SynthConfig, generate_scene
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 
 @pytest.fixture(scope="module")

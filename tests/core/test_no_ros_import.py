@@ -1,4 +1,5 @@
-"""sgreg_core is a pure library: importing it (and its modules) must pull in no ROS module."""
+"""sgreg_core is a pure library: importing it (every one of its modules) must pull in no ROS
+module. The command-line tool (sgreg_cli) and the nodes (sgreg_ros) are where ROS enters."""
 import subprocess
 import sys
 
@@ -8,10 +9,8 @@ ROS_PREFIXES = ("rclpy", "rosidl", "rcl_interfaces", "sgreg_msgs", "std_msgs", "
 CODE = """
 import importlib, pkgutil, sys
 import sgreg_core
-skip = ("sgreg_core.commands",)  # CLI commands may use ROS (play, record, replay)
 for m in pkgutil.walk_packages(sgreg_core.__path__, "sgreg_core."):
-    if not m.name.startswith(skip):
-        importlib.import_module(m.name)
+    importlib.import_module(m.name)
 print("\\n".join(sorted(sys.modules)))
 """
 

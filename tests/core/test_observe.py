@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from sgreg_core.observe import SensorConfig, first_seen, make_trajectory, observe_sequence, reverse_trajectory
-from sgreg_core.synth import SynthConfig, generate_scene
+from sgreg_core.simulation.observe import SensorConfig, first_seen, make_trajectory, observe_sequence, reverse_trajectory
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
 
 

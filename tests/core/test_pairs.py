@@ -4,10 +4,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from sgreg_core.geometry import transform_points, yaw_transform
-from sgreg_core.instance_map import labelled_mask
-from sgreg_core.pairs import (PARAPHRASES, NoiseConfig, PairConfig, apply_noise, make_pair, node_iou,
-                              point_correspondences, read_pair, write_pair)
-from sgreg_core.synth import generate_scene
+from sgreg_core.maps.instance_map import labelled_mask
+from sgreg_core.simulation.noise import PARAPHRASES, NoiseConfig, apply_noise
+from sgreg_core.simulation.pairs import (PairConfig, make_pair, node_iou, point_correspondences, read_pair,
+                                         write_pair)
+from sgreg_core.simulation.synth import generate_scene
 
 
 @pytest.fixture(scope="module")

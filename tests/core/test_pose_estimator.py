@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from sgreg_core.cli import main
+from sgreg_cli.main import main
 from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
                              make_T, yaw_rotation)
 

@@ -6,14 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from sgreg_core.cli import main
-from sgreg_core.instance_map import write_instance_map
+from sgreg_cli.main import main
+from sgreg_core.maps.instance_map import write_instance_map
 from sgreg_core.metrics import registration_rmse
 from sgreg_core.net.model import load_model
 from sgreg_core.net.testing import toy_graph
-from sgreg_core.pairs import PairConfig, make_pair
-from sgreg_core.register import RegisterConfig, register_graphs
-from sgreg_core.synth import SynthConfig, generate_scene
+from sgreg_core.simulation.pairs import PairConfig, make_pair
+from sgreg_core.pipeline import PipelineConfig, register_graphs
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 RESULT_KEYS = {"T": list, "success": bool, "node_matches": int, "inliers": int,
                "timing_ms": dict, "reason": str, "weights_id": str, "mode": str,
@@ -95,7 +95,7 @@ def test_bad_input_is_one_line_exit_2(data, tmp_path, capsys, problem):
 
 def test_tiny_graphs_are_refused_without_matching():
     graph = toy_graph(np.random.default_rng(0), n=2)
-    reg = register_graphs(load_model(), graph, graph, RegisterConfig())
+    reg = register_graphs(load_model(), graph, graph, PipelineConfig())
     assert not reg.success and reg.reason == "too_few_nodes" and np.allclose(reg.T, np.eye(4))
 
 

@@ -2,7 +2,7 @@
 import numpy as np
 
 from sgreg_core.geometry import invert_transform, yaw_transform
-from sgreg_core.replay_score import ResultRecord, ground_truth, score_replay
+from sgreg_core.bench.replay_score import ResultRecord, ground_truth, score_replay
 
 FRAMES = {"a": yaw_transform(0.3, (1.0, 2.0, 0.0)), "b": yaw_transform(-1.2, (-4.0, 0.5, 0.2))}
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sgreg_core.geometry import yaw_transform, transform_points
-from sgreg_core.scene_graph import GraphConfig, build_scene_graph, is_structural
+from sgreg_core.maps.scene_graph import GraphConfig, build_scene_graph, is_structural
 from sgreg_core.types import InstanceMap
 
 
@@ -95,5 +95,5 @@ def test_synthetic_scene_graph_is_fast_and_sane(synth_scene):
 
 @pytest.fixture(scope="module")
 def synth_scene():
-    from sgreg_core.synth import generate_scene
+    from sgreg_core.simulation.synth import generate_scene
     return generate_scene(5)

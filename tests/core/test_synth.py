@@ -5,10 +5,10 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from sgreg_core.instance_map import validate_instance_map
-from sgreg_core.pairs import NoiseConfig
-from sgreg_core.scene_graph import build_scene_graph
-from sgreg_core.synth import KINDS, SynthConfig, generate_scene
+from sgreg_core.maps.instance_map import validate_instance_map
+from sgreg_core.simulation.noise import NoiseConfig
+from sgreg_core.maps.scene_graph import build_scene_graph
+from sgreg_core.simulation.synth import KINDS, SynthConfig, generate_scene
 
 
 def test_deterministic_from_seed():
@@ -50,7 +50,7 @@ def test_vocabulary_and_shapes_beyond_boxes():
 
 
 def test_floor_and_wall_hidden_behind_solid_furniture():
-    from sgreg_core.synth.scene import _hide_occluded
+    from sgreg_core.simulation.synth.scene import _hide_occluded
     pts = np.array([[0.0, 0.0, 0.0], [0.9, 0.0, 0.0], [0.0, 0.55, 1.0], [0.0, 0.55, 2.5], [0.1, 0.1, 0.5]])
     tags = np.array([0, 0, 1, 1, 2])
     structural = np.array([True, True, False])

@@ -12,11 +12,12 @@ from sgreg_msgs.msg import InstanceMap, RegistrationResult
 
 from sgreg_core.geometry import transform_points, yaw_transform
 from sgreg_core.metrics import two_agent_success
-from sgreg_core.replay_score import ground_truth
-from sgreg_core.instance_map import select_points
-from sgreg_core.synth.scene import SynthConfig, generate_scene
+from sgreg_core.bench.replay_score import ground_truth
+from sgreg_core.maps.instance_map import select_points
+from sgreg_core.simulation.synth.scene import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap as CoreMap
-from sgreg_ros import launch, qos
+from sgreg_cli import processes
+from sgreg_ros import qos
 from sgreg_ros.convert import instance_map_to_msg, transform_from_msg
 
 
@@ -118,4 +119,4 @@ def alive(procs):
     return [f"{p.agent}/{p.executable}" for p in procs if p.proc.poll() is not None]
 
 
-__all__ = ["FAST", "agent_maps", "Watcher", "launch", "alive", "verified_pairs_ok"]
+__all__ = ["FAST", "agent_maps", "Watcher", "processes", "alive", "verified_pairs_ok"]

@@ -7,11 +7,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 import sgreg_msgs.msg as msgs
-from sgreg_ros.bag_types import typestore
+from sgreg_cli.bag_types import typestore
 
 from .samples import coarse_graph, instance_map
 
-SGREG = [sys.executable, "-m", "sgreg_core.cli"]
+SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 
 def write_bag(path, corrupt_index=None, n=6):

@@ -4,7 +4,7 @@ import json
 import subprocess
 import sys
 
-SGREG = [sys.executable, "-m", "sgreg_core.cli"]
+SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 SUITE = """
 name: tiny
@@ -49,9 +49,9 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     again = bench(suite, out)                     # nothing changed: every result is cached
     assert again.count(": cached") == 2
     # the offline backend replays the same bags in-process; --set changes its settings
-    offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "registration.confirm=false")
+    offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false")
     assert "suite tiny" in offline
-    bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "registration.confirm=false"],
+    bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "peers.confirm=false"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "offline" in bad.stderr
 

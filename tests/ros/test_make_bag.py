@@ -14,7 +14,7 @@ from sgreg_core.geometry import transform_points
 from sgreg_msgs.msg import InstanceMap
 from sgreg_ros.convert import instance_map_from_msg
 
-SGREG = [sys.executable, "-m", "sgreg_core.cli"]
+SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 
 def test_make_bag_from_a_synthetic_scene(tmp_path):

@@ -6,9 +6,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 import sgreg_msgs.msg as msgs
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-from sgreg_ros.bag_types import typestore
-from sgreg_ros.msg_compare import to_plain
+from sgreg_cli.bag_types import typestore
 
+from .msg_compare import to_plain
 from .samples import all_samples
 
 

@@ -10,8 +10,8 @@ import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 import sgreg_msgs.msg as msgs
-from sgreg_ros.msg_compare import to_plain
 
+from .msg_compare import to_plain
 from .samples import all_samples
 
 ECHO = Path(__file__).with_name("echo_node.py")

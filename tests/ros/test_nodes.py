@@ -1,6 +1,6 @@
 """Real agent and registration nodes, as separate processes over DDS on loopback (a domain of
 this run's own): two agents register, three register pairwise, and every failure case of
-DESIGN.md section 5 is counted while the nodes carry on."""
+docs/ARCHITECTURE.md ("Failure behaviour") is counted while the nodes carry on."""
 import copy
 import os
 import signal
@@ -12,12 +12,12 @@ import rclpy
 from sgreg_msgs.msg import CoarseGraph, DenseRequest, InstanceMap
 
 from sgreg_core.metrics import two_agent_success
-from sgreg_core.replay_score import ground_truth
+from sgreg_core.bench.replay_score import ground_truth
 from sgreg_core.types import InstanceMap as CoreMap
 from sgreg_ros import qos
 from sgreg_ros.convert import instance_map_to_msg
 
-from .harness import FAST, Watcher, agent_maps, alive, launch, verified_pairs_ok
+from .harness import FAST, Watcher, agent_maps, alive, processes, verified_pairs_ok
 
 
 
@@ -32,7 +32,7 @@ def ros():
 def two(ros, tmp_path_factory):
     names = ["a", "b"]
     maps, frames = agent_maps(names, seed=11)
-    procs = launch.start_agents(names, overrides=FAST, log_dir=tmp_path_factory.mktemp("logs"))
+    procs = processes.start_agents(names, overrides=FAST, log_dir=tmp_path_factory.mktemp("logs"))
     w = Watcher(names)
     coarse_b = []
     w.node.create_subscription(CoarseGraph, "/b/sgreg/coarse", coarse_b.append, qos.COARSE)
@@ -40,7 +40,7 @@ def two(ros, tmp_path_factory):
         assert w.wait_ready(names), f"nodes did not start; dead: {alive(procs)}"
         yield procs, w, maps, frames, coarse_b
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         w.close()
 
 
@@ -151,7 +151,7 @@ def test_a_peer_that_restarts(two, tmp_path):
         os.killpg(p.proc.pid, signal.SIGKILL)
         p.proc.wait()
         procs.remove(p)
-    procs += launch.start_agents(["b"], overrides=FAST, log_dir=tmp_path)
+    procs += processes.start_agents(["b"], overrides=FAST, log_dir=tmp_path)
     w.transforms.pop(("a", "b"), None)
     assert w.spin_until(lambda: w.counter("sgreg registration a", "peer_restart") >= 1
                         and verified_pairs_ok(w, frames, [("a", "b")]), 120, publish_maps=maps)

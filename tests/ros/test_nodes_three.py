@@ -6,9 +6,9 @@ import pytest
 import rclpy
 
 from sgreg_core.metrics import two_agent_success
-from sgreg_core.replay_score import ground_truth
+from sgreg_core.bench.replay_score import ground_truth
 
-from .harness import FAST, Watcher, agent_maps, alive, launch, verified_pairs_ok
+from .harness import FAST, Watcher, agent_maps, alive, processes, verified_pairs_ok
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def ros():
 def test_three_agents_register_pairwise(ros, tmp_path):
     names = ["a", "b", "c"]
     maps, frames = agent_maps(names, seed=12)
-    procs = launch.start_agents(names, overrides=FAST, log_dir=tmp_path)
+    procs = processes.start_agents(names, overrides=FAST, log_dir=tmp_path)
     w = Watcher(names)
     try:
         assert w.wait_ready(names), f"dead: {alive(procs)}"
@@ -36,7 +36,7 @@ def test_three_agents_register_pairwise(ros, tmp_path):
         for (agent, peer), Ts in w.transforms.items():
             assert all(two_agent_success(T, ground_truth(frames, agent, peer)) for T in Ts), (agent, peer)
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         w.close()
 
 
@@ -46,7 +46,7 @@ def test_three_agents_register_pairwise(ros, tmp_path):
     ("registration", {"max_retries": "three"}, "max_retries"),
 ])
 def test_invalid_parameters_are_refused_at_start(exe, params, words):
-    out = subprocess.run(launch.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,
+    out = subprocess.run(processes.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 2, out.stderr[-2000:]
     assert "refusing to start" in out.stderr and words in out.stderr

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
-from sgreg_ros.bag_types import typestore
+from sgreg_cli.bag_types import typestore
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
-SGREG = [sys.executable, "-m", "sgreg_core.cli"]
+SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 KB_BUDGET = 26.0
 
 

@@ -11,28 +11,27 @@ import json
 import subprocess
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
 
-from sgreg_core.commands.make_bag import BagSpec, make_bag
+from sgreg_cli.commands.make_bag import BagSpec, make_bag
 from sgreg_core.geometry import transform_points, yaw_transform
-from sgreg_core.instance_map import select_points, write_instance_map
+from sgreg_core.maps.instance_map import select_points, write_instance_map
 from sgreg_core.metrics import two_agent_success
 from sgreg_core.net.model import load_model
-from sgreg_core.offline_replay import OfflineReplayConfig, offline_replay
-from sgreg_core.replay_score import ground_truth, score_replay
-from sgreg_core.runtime.peer import RegistrationConfig
-from sgreg_core.synth import SynthConfig, generate_scene
+from sgreg_core.bench.offline_replay import OfflineReplayConfig, offline_replay
+from sgreg_core.bench.replay_score import ground_truth, score_replay
+from sgreg_core.runtime.peers import PeersConfig
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
-from sgreg_ros.bags import instance_maps_in_bag
+from sgreg_cli.bags import instance_maps_in_bag
 from sgreg_ros.convert import transform_from_msg
 
-from .harness import FAST, Watcher, agent_maps, alive, launch
+from .harness import FAST, Watcher, agent_maps, alive, processes
 
-SGREG = [sys.executable, "-m", "sgreg_core.cli"]
+SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 
 def symmetric_room(seed: int) -> InstanceMap:
@@ -71,8 +70,8 @@ def without_verdict() -> OfflineReplayConfig:
     """Every estimate that fits a few correspondences published at once: the old behaviour."""
     loose = dict(min_inliers=3, min_objects=1, min_spread=0.0, min_fitness=0.0,
                  min_footprint_share=0.0, max_ambiguity=1e9)
-    reg = RegistrationConfig(confirm=False)
-    return OfflineReplayConfig(registration=replace(reg, register=reg.register.with_verdict(**loose)))
+    peers = PeersConfig(confirm=False)
+    return OfflineReplayConfig(peers=replace(peers, pipeline=peers.pipeline.with_verdict(**loose)))
 
 
 def test_few_objects_of_a_symmetric_room_verify_nothing_wrong(symmetric_bag):
@@ -105,7 +104,7 @@ def ros():
 def test_a_contradicted_link_is_withdrawn_over_dds(ros, tmp_path):
     names = ["a", "b"]
     maps, frames = agent_maps(names, seed=11)
-    procs = launch.start_agents(names, overrides=FAST, log_dir=tmp_path)
+    procs = processes.start_agents(names, overrides=FAST, log_dir=tmp_path)
     w = Watcher(names)
     try:
         assert w.wait_ready(names), f"nodes did not start; dead: {alive(procs)}"
@@ -140,5 +139,5 @@ def test_a_contradicted_link_is_withdrawn_over_dds(ros, tmp_path):
         assert after and all(two_agent_success(transform_from_msg(r.transform), gt) for r in after)
         assert not alive(procs)
     finally:
-        launch.stop(procs)
+        processes.stop(procs)
         w.close()

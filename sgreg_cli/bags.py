@@ -1,0 +1,186 @@
+"""rosbag2 (MCAP) play and record on rclpy + rosbags: what `ros2 bag` does, for a ROS 2 that
+comes from wheels and has no rosbag2.
+
+Messages travel as CDR bytes: rosbags' bytes are rclpy's, so nothing is re-encoded."""
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+
+from sgreg_ros import qos
+from .bag_types import typestore
+
+
+class BagError(ValueError):
+    """A bag that cannot be opened or a topic that cannot be played or recorded."""
+
+
+def message_class(msgtype: str):
+    """'sgreg_msgs/msg/CoarseGraph' -> the rclpy message class."""
+    try:
+        pkg, kind, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    except (ValueError, ImportError, AttributeError):
+        raise BagError(f"message type {msgtype} is not available in this environment") from None
+
+
+def qos_for(topic: str) -> QoSProfile:
+    """The QoS sgreg's own nodes use on a topic of that name (see qos.py)."""
+    for suffix, profile in (("/sgreg/coarse", qos.COARSE), ("/sgreg/dense", qos.DENSE),
+                            ("/sgreg/dense_request", qos.DENSE_REQUEST),
+                            ("/mapping/instances", qos.INSTANCES)):
+        if topic.endswith(suffix):
+            return profile
+    return qos.RESULTS
+
+
+def open_bag(path: str | Path) -> Reader:
+    path = Path(path)
+    if not (path / "metadata.yaml").exists():
+        raise BagError(f"{path} is not a rosbag2 directory (no metadata.yaml)")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises its own types for every malformed bag
+        raise BagError(f"cannot open bag {path}: {exc}") from None
+    return reader
+
+
+@dataclass
+class PlayReport:
+    """published / corrupted / per_topic: what was played; clock: (monotonic s, bag s) at the
+    first message, so that any later moment maps to bag time (scaled by the rate)."""
+
+    published: int = 0
+    corrupted: list = field(default_factory=list)   # (topic, index, error)
+    per_topic: dict = field(default_factory=dict)
+    clock: tuple[float, float] | None = None
+
+
+def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
+             log=print, should_stop=lambda: False, delay: float = 1.0,
+             wait_subscribers: float = 0.0, flush_timeout: float = 2.0) -> PlayReport:
+    """Publish a bag's messages with their recorded timing (scaled by 1/rate) from `node`.
+
+    `delay` seconds pass between creating the publishers and the first message, so that
+    subscribers (a recorder discovers topics only once they exist) can match them; with
+    `wait_subscribers` > 0, play first waits up to that long until every topic has a subscriber.
+    At the end it waits up to `flush_timeout` seconds until reliable subscribers acknowledged
+    everything.
+    Each message is checked by deserialising it first; one that does not decode is reported
+    and skipped, and the rest of the bag plays on."""
+    if rate <= 0:
+        raise BagError(f"rate must be positive, got {rate}")
+    report = PlayReport()
+    reader = open_bag(path)
+    try:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        classes = {c.id: message_class(c.msgtype) for c in conns}
+        pubs = {}
+        for c in conns:
+            if c.topic not in pubs:
+                pubs[c.topic] = node.create_publisher(classes[c.id], c.topic, qos_for(c.topic))
+        deadline = time.monotonic() + wait_subscribers
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
+            time.sleep(0.05)
+        time.sleep(delay)
+        t0_bag, t0_wall = None, time.monotonic()
+        for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
+            if should_stop():
+                break
+            if t0_bag is None:
+                t0_bag = t_ns
+                report.clock = (t0_wall, t_ns * 1e-9)
+            wait = t0_wall + (t_ns - t0_bag) * 1e-9 / rate - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            try:
+                deserialize_message(bytes(raw), classes[conn.id])
+            except Exception as exc:
+                report.corrupted.append((conn.topic, index, str(exc)[:200]))
+                log(f"bag message {index} on {conn.topic} is corrupted ({exc}); skipped")
+                continue
+            pubs[conn.topic].publish(bytes(raw))
+            report.published += 1
+            report.per_topic[conn.topic] = report.per_topic.get(conn.topic, 0) + 1
+        # a reliable message still in flight dies with the process: wait for the readers' acks
+        for pub in pubs.values():
+            pub.wait_for_all_acked(Duration(seconds=flush_timeout))
+    finally:
+        reader.close()
+    return report
+
+
+class BagRecorder:
+    """Records raw messages of live topics into a rosbag2 directory (MCAP)."""
+
+    def __init__(self, node, out: str | Path):
+        out = Path(out)
+        if out.exists():
+            raise BagError(f"{out} exists; rosbag2 writes a new directory")
+        self.node = node
+        self.store = typestore()
+        self.writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """msgtype as 'pkg/msg/Name'."""
+        if topic in self.connections:
+            return
+        cls = message_class(msgtype)
+        conn = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        self.connections[topic] = conn
+        self.counts[topic] = 0
+        self.node.create_subscription(cls, topic, lambda raw, c=conn, t=topic: self._write(c, t, raw),
+                                      qos_for(topic), raw=True)
+
+    def _write(self, conn, topic: str, raw: bytes) -> None:
+        self.writer.write(conn, self.node.get_clock().now().nanoseconds, raw)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def spin_for(node, duration: float) -> None:
+    """Spin `node` for `duration` seconds (0: until Ctrl-C or SIGTERM), for the live tools."""
+    start = time.monotonic()
+    try:
+        while rclpy.ok() and (duration <= 0 or time.monotonic() - start < duration):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
+    """Every */mapping/instances message of a bag as (bag time - t_origin in s, agent id,
+    sgreg_core InstanceMap), in bag order; for offline replays. Undecodable messages are
+    skipped, as `play_bag` skips them."""
+    from sgreg_msgs.msg import InstanceMap
+
+    from sgreg_ros.convert import ConversionError, instance_map_from_msg
+
+    reader = open_bag(path)
+    out = []
+    try:
+        conns = [c for c in reader.connections if c.topic.endswith("/mapping/instances")]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            try:
+                imap = instance_map_from_msg(deserialize_message(bytes(raw), InstanceMap))
+            except (ConversionError, Exception):
+                continue
+            out.append((t_ns * 1e-9 - t_origin, conn.topic.split("/")[1], imap))
+    finally:
+        reader.close()
+    return out

@@ -1,0 +1,51 @@
+"""sgreg agents --names a b [c ...]: the agent and registration nodes of N agents on this machine,
+stopped cleanly on Ctrl-C."""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+
+NAME = "agents"
+HELP = "start agent + registration nodes for N agents on this machine"
+
+
+def add_arguments(p):
+    p.add_argument("--names", nargs="+", required=True, help="agent ids, one namespace each")
+    p.add_argument("--params-file", help="ROS parameter YAML (default: config/sgreg.yaml)")
+    p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
+    p.add_argument("--log-dir", help="write each node's output to a file here instead of the terminal")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..processes import DEFAULT_PARAMS, start_agents, stop
+
+    if len(set(args.names)) != len(args.names) or not all(n.isidentifier() for n in args.names):
+        print("sgreg agents: agent names must be distinct identifiers (a, b, robot_1, ...)", file=sys.stderr)
+        return 2
+    overrides = {"weights_path": args.weights} if args.weights else None
+    procs = start_agents(args.names, args.params_file or DEFAULT_PARAMS, overrides,
+                         Path(args.log_dir) if args.log_dir else None)
+    print(f"started {len(procs)} nodes for agents {', '.join(args.names)}; Ctrl-C stops them", flush=True)
+    stopping = False
+
+    def on_signal(signum, frame):
+        nonlocal stopping
+        stopping = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        while not stopping:
+            dead = [p for p in procs if p.proc.poll() is not None]
+            if dead:
+                for p in dead:
+                    print(f"sgreg agents: {p.agent}/{p.executable} exited with {p.proc.returncode}", file=sys.stderr)
+                return 1
+            time.sleep(0.2)
+    finally:
+        stop(procs)
+        print("all nodes stopped", flush=True)
+    return 0

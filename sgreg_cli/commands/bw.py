@@ -1,0 +1,71 @@
+"""sgreg bw [TOPICS] | sgreg bw --bag BAG: per-topic bandwidth, like `ros2 topic bw`."""
+from __future__ import annotations
+
+import sys
+import time
+
+NAME = "bw"
+HELP = "per-topic bandwidth of live topics or of a bag"
+
+
+def add_arguments(p):
+    p.add_argument("topics", nargs="*", help="topics to watch (default: every /*/sgreg/* topic)")
+    p.add_argument("--bag", help="report a rosbag2 directory instead of live topics")
+    p.add_argument("--window", type=float, default=10.0, help="live: averaging window in seconds")
+    p.add_argument("--duration", type=float, default=0.0, help="live: stop after this many seconds (0: Ctrl-C)")
+
+
+def run(args) -> int:
+    from sgreg_core.bench.bandwidth import HEADER, BandwidthMeter, format_table
+
+    if args.bag:
+        from ..bags import BagError, open_bag
+
+        try:
+            reader = open_bag(args.bag)
+        except BagError as exc:
+            print(f"sgreg bw: {exc}", file=sys.stderr)
+            return 2
+        meter = BandwidthMeter()
+        try:
+            conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
+            for conn, t_ns, raw in reader.messages(connections=conns):
+                meter.add(conn.topic, t_ns * 1e-9, len(raw))
+            span = (reader.end_time - reader.start_time) * 1e-9
+        finally:
+            reader.close()
+        print(f"bag {args.bag}: {span:.1f} s")
+        print(format_table(HEADER, [r.as_row() for r in meter.report(span=span)]))
+        return 0
+
+    import rclpy
+
+    from ..bags import message_class, qos_for, spin_for
+
+    rclpy.init()
+    node = rclpy.create_node("sgreg_bw")
+    meter = BandwidthMeter(window_s=args.window)
+    watched: set[str] = set()
+
+    def watch():
+        for topic, types in node.get_topic_names_and_types():
+            wanted = topic in args.topics if args.topics else "/sgreg/" in topic
+            if wanted and topic not in watched:
+                watched.add(topic)
+                node.create_subscription(message_class(types[0]), topic,
+                                         lambda raw, t=topic: meter.add(t, time.monotonic(), len(raw)),
+                                         qos_for(topic), raw=True)
+
+    def show():
+        rows = meter.report(now=time.monotonic())
+        print(format_table(HEADER, [r.as_row() for r in rows]) if rows else "(no messages yet)", flush=True)
+
+    node.create_timer(1.0, watch)
+    node.create_timer(max(1.0, args.window / 5), show)
+    try:
+        spin_for(node, args.duration)
+    finally:
+        show()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

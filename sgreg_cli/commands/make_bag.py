@@ -1,0 +1,227 @@
+"""sgreg make-bag SCAN_DIR --out bags/NAME: two agents walk through a scan; their growing instance
+maps and the ground truth go into a rosbag2 directory (MCAP) plus ground_truth.json.
+
+With --scan-b and --gt, agent b walks another capture of the same room (moved into a's frame by
+the pseudo ground truth of rescan_gt.json): furniture moved, coverage different. The knobs
+that make early, small maps: --speed, --range, --fov, --waypoints, --start-a / --start-b."""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+NAME = "make-bag"
+HELP = "simulate two agents in a scan and write a rosbag2 (MCAP)"
+GT_TOPIC = "/sgreg/ground_truth"
+T_ORIGIN = 1_700_000_000.0  # bag time origin (s): bag stamp = T_ORIGIN + simulation time
+
+
+@dataclass
+class BagSpec:
+    """Everything that decides a bag (the simulation is seeded: one spec, one bag).
+
+    scan / scan_b: instance-map directories; scan_b (optional) is the capture b walks, and then
+        gt names the pseudo ground truth (rescan_gt.json) that relates it to scan.
+    opposite: b walks a's path backwards (else its own path).
+    speed (m/s), range (m), fov (deg): walk and sensor; range_b / fov_b: b's sensor when it
+    differs (None: as a's); mapping_period: s between snapshots;
+    voxel: m, snapshot downsampling; clearance: m kept from obstacles by the walks;
+    waypoints: far-apart free cells each walk visits; start_a / start_b: scene x, y of the
+    first waypoint of a's and (own path only) b's walk, None: seeded; random_start: a seeded
+    walk starts anywhere (else at a far end of the free space, where most seeds agree).
+    level: rotate the scans so that their labelled floor is horizontal (robot maps are
+        gravity-aligned; some scans lean)."""
+
+    scan: str
+    scan_b: str | None = None
+    gt: str | None = None
+    seed: int = 0
+    opposite: bool = True
+    speed: float = 0.5
+    range: float = 4.0
+    fov: float = 90.0
+    range_b: float | None = None
+    fov_b: float | None = None
+    mapping_period: float = 1.0
+    voxel: float = 0.08
+    clearance: float = 0.3
+    waypoints: int = 2
+    start_a: tuple[float, float] | None = None
+    start_b: tuple[float, float] | None = None
+    random_start: bool = False
+    level: bool = True
+
+
+class BagSpecError(ValueError):
+    """A spec that cannot become a bag (missing scan, pair without accepted ground truth)."""
+
+
+def add_arguments(p):
+    p.add_argument("scan", help="instance map directory (points.npy, instance.npy, instances.json)")
+    p.add_argument("--out", required=True, help="new rosbag2 directory, e.g. bags/apartment")
+    p.add_argument("--scan-b", help="another capture of the same room for agent b (needs --gt)")
+    p.add_argument("--gt", help="pseudo ground truth between captures (rescan_gt.json)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--same-direction", action="store_true",
+                   help="b walks its own path (default: a's path in the opposite direction)")
+    p.add_argument("--mapping-period", type=float, default=1.0, help="seconds between map snapshots")
+    p.add_argument("--voxel", type=float, default=0.08, help="map points are downsampled to this (m)")
+    p.add_argument("--speed", type=float, default=0.5, help="walking speed (m/s)")
+    p.add_argument("--range", type=float, default=4.0, help="sensor range (m)")
+    p.add_argument("--fov", type=float, default=90.0, help="horizontal field of view (deg)")
+    p.add_argument("--range-b", type=float, help="b's sensor range (m), if not a's")
+    p.add_argument("--fov-b", type=float, help="b's field of view (deg), if not a's")
+    p.add_argument("--clearance", type=float, default=0.3, help="distance walks keep from obstacles (m)")
+    p.add_argument("--waypoints", type=int, default=2, help="far-apart places each walk visits")
+    p.add_argument("--start-a", type=_xy, help="X,Y: where a starts (scene frame, m)")
+    p.add_argument("--start-b", type=_xy, help="X,Y: where b starts (own path only)")
+    p.add_argument("--random-start", action="store_true",
+                   help="seeded walks start anywhere (default: at a far end of the free space)")
+    p.add_argument("--no-level", action="store_true", help="keep the scans' own vertical")
+
+
+def _xy(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"expected X,Y, got {text!r}") from None
+    return x, y
+
+
+def rescan_transform(scan: str, scan_b: str, gt_path: str):
+    """T (4x4) mapping scan_b's points into scan's frame, from an accepted rescan_gt.json entry."""
+    import numpy as np
+
+    try:
+        pairs = json.loads(Path(gt_path).read_text())["pairs"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise BagSpecError(f"cannot read pseudo ground truth {gt_path}: {exc}") from None
+    a, b = Path(scan).name, Path(scan_b).name
+    for entry in pairs:
+        if {entry.get("src"), entry.get("ref")} != {a, b}:
+            continue
+        if not entry.get("accepted"):
+            why = "; ".join(entry.get("reasons") or [entry.get("reason", "no reason given")])
+            raise BagSpecError(f"{gt_path} rejects {a} x {b}: {why}")
+        T = np.asarray(entry["T_src_to_ref"], np.float64)
+        return T if entry["src"] == b else np.linalg.inv(T)
+    raise BagSpecError(f"{gt_path} has no entry for {a} x {b}")
+
+
+def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
+    """Simulate the walks of `spec` and write the bag directory `out` (MCAP, zstd) with its
+    ground_truth.json; returns that ground truth. Raises BagSpecError on bad input."""
+    import numpy as np
+    from rclpy.serialization import serialize_message
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from ..bag_types import typestore
+    from sgreg_ros.convert import instance_map_to_msg, transform_msg
+
+    from sgreg_core.geometry import transform_points
+    from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
+    from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
+    from sgreg_core.simulation.two_agents import TwoAgentConfig, level_transform, simulate
+    from sgreg_core.types import InstanceMap
+
+    out = Path(out)
+    if out.exists():
+        raise BagSpecError(f"{out} exists; choose a new directory")
+    if spec.scan_b and not spec.gt:
+        raise BagSpecError("a second capture (scan_b) needs its pseudo ground truth (gt)")
+    try:
+        scene = read_instance_map(spec.scan)
+        scene_b = read_instance_map(spec.scan_b) if spec.scan_b else None
+    except InstanceMapError as exc:
+        raise BagSpecError(str(exc)) from None
+
+    def moved(imap, T):
+        return InstanceMap(points=transform_points(T, imap.points).astype(np.float32),
+                           instance=imap.instance, labels=imap.labels, scores=imap.scores,
+                           colors=imap.colors)
+
+    T_level = level_transform(scene) if spec.level else np.eye(4)
+    T_b_capture = np.eye(4)   # b's capture frame -> a's scan frame
+    if scene_b is not None:
+        T_b_capture = rescan_transform(spec.scan, spec.scan_b, spec.gt)
+        scene_b = moved(scene_b, T_level @ T_b_capture)
+    scene = moved(scene, T_level)
+    cfg = TwoAgentConfig(opposite=spec.opposite, mapping_period=spec.mapping_period,
+                         voxel=spec.voxel, start_b=spec.start_b,
+                         sensor=SensorConfig(max_range=spec.range, hfov_deg=spec.fov),
+                         sensor_b=SensorConfig(max_range=spec.range if spec.range_b is None else spec.range_b,
+                                               hfov_deg=spec.fov if spec.fov_b is None else spec.fov_b),
+                         trajectory=TrajectoryConfig(speed=spec.speed, clearance=spec.clearance,
+                                                     waypoints=spec.waypoints, start=spec.start_a,
+                                                     random_start=spec.random_start))
+    try:
+        sim = simulate(scene, np.random.default_rng(spec.seed), cfg, scene_b=scene_b,
+                       progress=lambda f: log(f"agents simulated: {f:.0%}"))
+    except ValueError as exc:   # e.g. no free space to walk in
+        raise BagSpecError(f"{spec.scan}: {exc}") from None
+    T = sim.T_a_b
+    store = typestore()
+    events = [(t, agent.name, m) for agent in (sim.a, sim.b) for t, m in agent.snapshots]
+    events.sort(key=lambda e: (e[0], e[1]))
+    seq = {"a": 0, "b": 0}
+    writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
+    # zstd chunks inside the MCAP (rosbag2's "storage" compression): point clouds shrink ~2x
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer as w:
+        conns = {name: w.add_connection(f"/{name}/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=store)
+                 for name in ("a", "b")}
+        gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store)
+        for i, (t, name, imap) in enumerate(events):
+            stamp = T_ORIGIN + t
+            msg = instance_map_to_msg(imap, name, seq[name], stamp)
+            seq[name] += 1
+            w.write(conns[name], int(stamp * 1e9), serialize_message(msg))
+            if name == "a":
+                w.write(gt, int(stamp * 1e9) + 1, serialize_message(transform_msg(T, "a", "b", stamp)))
+            if i % 10 == 0 or i == len(events) - 1:
+                log(f"writing: {i + 1}/{len(events)} messages")
+    info = {
+        "T_a_b": T.tolist(),
+        "description": "T_a_b maps points of a's map frame (a/map) into b's (b/map); also on "
+                       f"{GT_TOPIC} (header.frame_id b/map, child_frame_id a/map). objects: per "
+                       "agent, [t, ids] per snapshot (bag stamp = t_origin + t): the objects "
+                       "its map holds, named by a's instance ids (b's from another capture "
+                       "renamed by overlap under the pseudo ground truth)",
+        "T_scene_map": {r.name: r.T_scene_map.tolist() for r in (sim.a, sim.b)},
+        "T_level": T_level.tolist(),
+        "T_b_capture": T_b_capture.tolist(),
+        "t_origin": T_ORIGIN,
+        "objects": {r.name: [[t, ids] for (t, _), ids in zip(r.snapshots, r.objects)]
+                    for r in (sim.a, sim.b)},
+        "scan": str(spec.scan), "scan_b": spec.scan_b, "seed": spec.seed,
+        "agents": {r.name: {"snapshots": len(r.snapshots), "duration_s": float(r.times[-1]),
+                            "path_length_m": float(np.linalg.norm(np.diff(r.poses[:, :2], axis=0), axis=1).sum()),
+                            "final_points": int(r.snapshots[-1][1].points.shape[0]) if r.snapshots else 0,
+                            "final_instances": len(r.snapshots[-1][1].labels) if r.snapshots else 0}
+                   for r in (sim.a, sim.b)},
+        "config": asdict(spec),
+    }
+    (out / "ground_truth.json").write_text(json.dumps(info, indent=1) + "\n")
+    return info
+
+
+def run(args) -> int:
+    try:
+        spec = BagSpec(scan=args.scan, scan_b=args.scan_b, gt=args.gt, seed=args.seed,
+                       opposite=not args.same_direction, speed=args.speed, range=args.range,
+                       fov=args.fov, range_b=args.range_b, fov_b=args.fov_b,
+                       mapping_period=args.mapping_period, voxel=args.voxel,
+                       clearance=args.clearance, waypoints=args.waypoints,
+                       start_a=args.start_a, start_b=args.start_b,
+                       random_start=args.random_start, level=not args.no_level)
+        print(f"simulating two agents in {args.scan} ...", file=sys.stderr, flush=True)
+        info = make_bag(spec, args.out, log=lambda s: print(f"  {s}", file=sys.stderr, flush=True))
+    except BagSpecError as exc:
+        print(f"sgreg make-bag: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    size = sum(f.stat().st_size for f in out.iterdir())
+    n = sum(a["snapshots"] for a in info["agents"].values())
+    print(f"wrote {out}: {n} instance maps, {size / 1e6:.1f} MB; ground truth in {out / 'ground_truth.json'}")
+    return 0

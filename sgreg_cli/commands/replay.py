@@ -1,0 +1,109 @@
+"""sgreg replay BAG --json OUT [--png OUT]: replay a two-agent bag through real nodes (separate
+processes over DDS) and score every published estimate against the bag's ground truth."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+NAME = "replay"
+HELP = "replay a two-agent bag through real nodes and score every estimate"
+
+
+def add_arguments(p):
+    p.add_argument("bag", help="rosbag2 directory made by sgreg make-bag (with ground_truth.json)")
+    p.add_argument("--json", required=True, help="write the report here")
+    p.add_argument("--png", help="plot success, RTE and bandwidth over time")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed")
+    p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
+    p.add_argument("--params-file", help="ROS parameter YAML for the nodes (default: config/sgreg.yaml)")
+    p.add_argument("--log-dir", help="node logs (default: next to the JSON)")
+    p.add_argument("--restart", metavar="AGENT@SECONDS",
+                   help="kill that agent's nodes that long into the replay and restart them")
+
+
+def _fmt_T(T) -> str:
+    return "\n".join("  [" + "  ".join(f"{v:8.3f}" for v in row) + "]" for row in T)
+
+
+def run(args) -> int:
+
+    from ..bags import BagError
+    from ..replay import ReplayConfig, ground_truth_of, run_replay
+
+    from sgreg_core.bench.bandwidth import HEADER, format_table
+    from sgreg_core.bench.replay_report import PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, replay_report
+    from sgreg_core.bench.replay_score import ground_truth, score_replay
+    from sgreg_core.metrics import rre, rte
+
+    out_json = Path(args.json)
+    out_json.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        gt = ground_truth_of(args.bag)
+    except BagError as exc:
+        print(f"sgreg replay: {exc}", file=sys.stderr)
+        return 2
+    restart = None
+    if args.restart:
+        agent, _, when = args.restart.partition("@")
+        try:
+            restart = (agent, float(when))
+        except ValueError:
+            print(f"sgreg replay: --restart wants AGENT@SECONDS, got {args.restart!r}", file=sys.stderr)
+            return 2
+    cfg = ReplayConfig(rate=args.rate, restart=restart, params_file=args.params_file,
+                       overrides={"weights_path": args.weights} if args.weights else {},
+                       log_dir=Path(args.log_dir) if args.log_dir else out_json.parent / (out_json.stem + "_logs"))
+    try:
+        run_ = run_replay(args.bag, cfg, log=lambda s: print(f"[replay] {s}", flush=True))
+    except (BagError, RuntimeError) as exc:
+        print(f"sgreg replay: {exc}", file=sys.stderr)
+        return 2
+    score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
+    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
+                                                   "overrides": cfg.overrides})
+    kb_per_frame = report["kb_per_query_frame"]
+    out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
+
+    print()
+    print(format_table(HEADER, [b.as_row() for b in run_.bandwidth]))
+    print()
+    rows = [
+        ["query frames", str(score.query_frames)],
+        ["success rate (verified, RTE<0.5 m, RRE<5 deg)", f"{score.success_rate:.1%}  (paper: {PAPER_SUCCESS_RATE:.1%}, other data)"],
+        ["success rate (any estimate)", f"{score.success_rate_any:.1%}"],
+        ["success rate over registrable frames", f"{score.success_rate_registrable:.1%} of {score.registrable_frames}"
+         if score.success_rate_registrable is not None else "-"],
+        ["verified estimates / wrong verified", f"{score.verified} / {score.wrong_verified}"],
+        ["first success", f"{score.first_success_s:.1f} s" if score.first_success_s is not None else "never"],
+        ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],
+        ["coarse latency median / p90", _lat(score.coarse_latency_ms)],
+        ["dense latency median / p90", _lat(score.dense_latency_ms)],
+    ] + [[f"node {k}", f"CPU {v['cpu_share']:.0%}, peak {v['peak_rss_mb']:.0f} MB"] for k, v in run_.processes.items()]
+    if run_.corrupted:
+        rows.append(["corrupted bag messages skipped", str(len(run_.corrupted))])
+    print(format_table(["replay", "value"], rows))
+    last = {}
+    for r in run_.records:
+        if r.verified:
+            last[(r.agent, r.peer)] = r
+    for (agent, peer), r in sorted(last.items()):
+        T_gt = ground_truth(gt["T_scene_map"], agent, peer)
+        print(f"\nlast verified T_{agent}^{peer} ({r.mode}, t={r.t:.1f} s):\n{_fmt_T(r.T)}")
+        print(f"ground truth:\n{_fmt_T(T_gt)}")
+        print(f"RTE {rte(r.T, T_gt):.3f} m, RRE {rre(r.T, T_gt):.2f} deg")
+    if not last:
+        print("\nno verified estimate was published")
+    print(f"\nreport: {out_json}")
+    if args.png:
+        from sgreg_core.plots.replay import plot_replay
+
+        plot_replay(score, run_.timeline, args.png, title=f"replay of {Path(args.bag).name}")
+        print(f"plot: {args.png}")
+    return 0
+
+
+def _lat(d: dict) -> str:
+    if not d.get("n"):
+        return "-"
+    return f"{d['median']:.0f} / {d['p90']:.0f} ms (n={d['n']})"

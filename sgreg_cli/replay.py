@@ -1,0 +1,213 @@
+"""`sgreg replay`: start every agent's nodes as separate processes, play a two-agent bag into
+them, collect every published estimate, the traffic between agents, and the nodes' CPU and
+memory. Scoring is sgreg_core.replay_score."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import psutil
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from sgreg_msgs.msg import RegistrationResult
+
+from sgreg_core.bench.bandwidth import BandwidthMeter
+from sgreg_core.bench.replay_score import ResultRecord
+from sgreg_ros.convert import transform_from_msg
+from sgreg_ros.qos import RESULTS
+
+from . import processes
+from .bags import BagError, message_class, open_bag, play_bag, qos_for
+
+CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
+
+
+@dataclass
+class ReplayConfig:
+    """rate: playback speed. tail_s: time to keep listening after the bag ends (a dense
+    exchange may still be in flight). ready_timeout_s: how long nodes may take to start.
+    overrides: ROS parameters given to every node (e.g. weights_path).
+    restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
+        and start them again at once: a robot whose software crashes mid-mission."""
+
+    rate: float = 1.0
+    tail_s: float = 6.0
+    ready_timeout_s: float = 90.0
+    params_file: str | None = None
+    overrides: dict = field(default_factory=dict)
+    log_dir: Path | None = None
+    restart: tuple[str, float] | None = None
+
+
+@dataclass
+class ReplayRun:
+    records: list
+    bandwidth: list
+    bytes_per_topic: dict
+    processes: dict
+    played: int
+    corrupted: list
+    duration_s: float
+    timeline: list   # (t, topic, bytes) of cross-agent traffic
+    events: list     # (t, what) e.g. a restart
+
+
+def agents_in_bag(bag: str | Path) -> list[str]:
+    reader = open_bag(bag)
+    try:
+        names = sorted({c.topic.split("/")[1] for c in reader.connections
+                        if c.topic.endswith("/mapping/instances")})
+    finally:
+        reader.close()
+    if len(names) < 2:
+        raise BagError(f"{bag} holds instance maps of {len(names)} agent(s); a replay needs two or more")
+    return names
+
+
+class _Sampler:
+    """CPU time and peak memory of the node processes, sampled every 0.5 s."""
+
+    def __init__(self, procs):
+        self.procs, self.peak_rss, self.cpu, self.started = {}, {}, {}, {}
+        self.track(procs)
+
+    def track(self, procs, suffix: str = ""):
+        for p in procs:
+            name = f"{p.agent}/{p.executable}{suffix}"
+            self.procs[name] = psutil.Process(p.proc.pid)
+            self.peak_rss[name], self.cpu[name], self.started[name] = 0, 0.0, time.monotonic()
+
+    def sample(self):
+        for name, proc in self.procs.items():
+            try:
+                self.peak_rss[name] = max(self.peak_rss[name], proc.memory_info().rss)
+                t = proc.cpu_times()
+                self.cpu[name] = t.user + t.system
+            except psutil.Error:
+                pass
+
+    def report(self) -> dict:
+        """CPU share = CPU seconds over the process's wall time (1.0 = one core busy)."""
+        now = time.monotonic()
+        return {name: {"cpu_s": round(self.cpu[name], 2),
+                       "cpu_share": round(self.cpu[name] / max(now - self.started[name], 1e-3), 3),
+                       "peak_rss_mb": round(self.peak_rss[name] / 2**20, 1)} for name in self.procs}
+
+
+def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
+    names = agents_in_bag(bag)
+    procs = processes.start_agents(names, cfg.params_file or processes.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir)
+    sampler = _Sampler(procs)
+    rclpy.init()
+    node = rclpy.create_node("sgreg_replay")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    records: list[ResultRecord] = []
+    meter = BandwidthMeter()
+    timeline = []
+    t0 = time.monotonic()
+
+    def on_result(msg: RegistrationResult):
+        timing = dict(zip(msg.timing_names, msg.timing_ms))
+        records.append(ResultRecord(t=time.monotonic() - t0, agent=msg.agent_id, peer=msg.peer_id,
+                                    T=transform_from_msg(msg.transform), verified=msg.verified,
+                                    mode=msg.mode, reason=msg.reason, node_matches=msg.node_matches,
+                                    inliers=msg.inliers, total_ms=float(timing.get("total", 0.0)),
+                                    confidence=float(msg.confidence),
+                                    evidence={"objects": int(msg.inlier_objects),
+                                              "fitness": float(msg.fitness),
+                                              "ambiguity": float(msg.ambiguity)}))
+
+    def on_bytes(topic, raw):
+        t = time.monotonic() - t0
+        meter.add(topic, t, len(raw))
+        timeline.append((t, topic, len(raw)))
+
+    for name in names:
+        node.create_subscription(RegistrationResult, f"/{name}/sgreg/registration", on_result, RESULTS)
+        for suffix in CROSS_AGENT:
+            topic = f"/{name}{suffix}"
+            cls = message_class({"/sgreg/coarse": "sgreg_msgs/msg/CoarseGraph",
+                                 "/sgreg/dense": "sgreg_msgs/msg/DenseGraph",
+                                 "/sgreg/dense_request": "sgreg_msgs/msg/DenseRequest"}[suffix])
+            node.create_subscription(cls, topic, lambda raw, t=topic: on_bytes(t, raw), qos_for(topic), raw=True)
+
+    player = rclpy.create_node("sgreg_replay_player")
+    play_result = {}
+    events: list = []
+    try:
+        # ready: both nodes of every agent subscribe to its mapping/instances
+        deadline = time.monotonic() + cfg.ready_timeout_s
+        while time.monotonic() < deadline:
+            dead = [p for p in procs if p.proc.poll() is not None]
+            if dead:
+                raise RuntimeError(f"node {dead[0].agent}/{dead[0].executable} exited with "
+                                   f"{dead[0].proc.returncode} during start-up"
+                                   + (f" (log: {dead[0].log_path})" if dead[0].log_path else ""))
+            if all(node.count_subscribers(f"/{n}/mapping/instances") >= 2 for n in names):
+                break
+            executor.spin_once(timeout_sec=0.1)
+        else:
+            raise RuntimeError(f"nodes not ready after {cfg.ready_timeout_s} s")
+        log(f"nodes of agents {', '.join(names)} are up; playing {bag}")
+        t0 = time.monotonic()
+
+        def play():
+            # only the nodes' inputs: the ground-truth topic has no subscriber to wait for
+            play_result["report"] = play_bag(player, bag, rate=cfg.rate, delay=0.5, wait_subscribers=10.0,
+                                             topics=[f"/{n}/mapping/instances" for n in names], log=log)
+
+        thread = threading.Thread(target=play, daemon=True)
+        thread.start()
+        last_sample = 0.0
+        end_at = None
+        restart = cfg.restart
+        while end_at is None or time.monotonic() < end_at:
+            executor.spin_once(timeout_sec=0.05)
+            if restart and time.monotonic() - t0 >= restart[1]:
+                victims = [p for p in procs if p.agent == restart[0]]
+                processes.kill(victims)
+                for p in victims:
+                    procs.remove(p)
+                fresh = processes.start_agents([restart[0]], cfg.params_file or processes.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir,
+                                            log_suffix="_restarted")
+                procs += fresh
+                sampler.track(fresh, " (restarted)")
+                events.append((time.monotonic() - t0, f"killed and restarted the nodes of {restart[0]}"))
+                log(events[-1][1])
+                restart = None
+            if time.monotonic() - last_sample > 0.5:
+                sampler.sample()
+                last_sample = time.monotonic()
+            if end_at is None and not thread.is_alive():
+                end_at = time.monotonic() + cfg.tail_s
+        duration = time.monotonic() - t0
+    finally:
+        sampler.sample()
+        processes.stop(procs)
+        player.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    report = play_result.get("report")
+    if report is not None and report.clock is not None:
+        # bag seconds (after the bag's t_origin, as its ground truth counts them) of each frame
+        gt_path = Path(bag) / "ground_truth.json"
+        origin = json.loads(gt_path.read_text()).get("t_origin", 0.0) if gt_path.exists() else 0.0
+        wall0, bag0 = report.clock
+        for r in records:
+            r.bag_t = bag0 - origin + (t0 + r.t - wall0) * cfg.rate
+    return ReplayRun(records=records, bandwidth=meter.report(span=duration),
+                     bytes_per_topic=dict(meter.totals), processes=sampler.report(),
+                     played=report.published if report else 0,
+                     corrupted=report.corrupted if report else [], duration_s=duration,
+                     timeline=timeline, events=events)
+
+
+def ground_truth_of(bag: str | Path) -> dict:
+    path = Path(bag) / "ground_truth.json"
+    if not path.exists():
+        raise BagError(f"{bag} has no ground_truth.json (made by sgreg make-bag)")
+    return json.loads(path.read_text())

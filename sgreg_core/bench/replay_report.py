@@ -1,0 +1,48 @@
+"""The JSON report of one replay (`sgreg replay`, `sgreg bench-replay`): the score of every frame,
+registrability and links (bench/replay_score.py) and, for a replay through real nodes, traffic,
+node load and played messages. The SG-Reg paper's two-agent figures are carried beside ours
+for scale (other data).
+"""
+from __future__ import annotations
+
+PAPER_SUCCESS_RATE = 0.324   # SG-Reg T-RO 2025, two-agent success rate (different data)
+PAPER_KB_PER_FRAME = 52.0
+
+
+def replay_report(bag, score, run_=None, config: dict | None = None) -> dict:
+    """The JSON report of one replay: the score (every frame, registrability, links) and, from a
+    replay through real nodes (run_), traffic, node load and played messages."""
+    report = {
+        "bag": str(bag),
+        "query_frames": score.query_frames,
+        "success_rate": score.success_rate,
+        "success_rate_any": score.success_rate_any,
+        "paper_success_rate": PAPER_SUCCESS_RATE,
+        "registrable_frames": score.registrable_frames,
+        "success_rate_registrable": score.success_rate_registrable,
+        "wrong_verified": score.wrong_verified,
+        "verified": score.verified,
+        "first_success_s": score.first_success_s,
+        "links": score.links,
+        "median_rte_verified_m": score.median_rte_verified,
+        "median_rre_verified_deg": score.median_rre_verified,
+        "kb_per_query_frame": None,
+        "paper_kb_per_query_frame": PAPER_KB_PER_FRAME,
+        "coarse_latency_ms": score.coarse_latency_ms,
+        "dense_latency_ms": score.dense_latency_ms,
+        "config": config or {},
+        "frames": score.to_dict()["frames"],
+    }
+    if run_ is not None:
+        cross_bytes = sum(run_.bytes_per_topic.values())
+        report.update({
+            "kb_per_query_frame": cross_bytes / 1e3 / score.query_frames if score.query_frames else None,
+            "bytes_per_topic": run_.bytes_per_topic,
+            "bandwidth": [vars(b) for b in run_.bandwidth],
+            "nodes": run_.processes,
+            "messages_played": run_.played,
+            "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
+            "duration_s": run_.duration_s,
+            "events": [{"t": t, "what": w} for t, w in run_.events],
+        })
+    return report

@@ -1,0 +1,150 @@
+"""Scoring a multi-agent replay: every registration result the agents published, against the
+ground truth of the bag. Pure: fed with plain records, knows nothing of ROS.
+
+A query frame is one published result (one estimate attempt of one agent). It succeeds when its
+estimate is verified and within RTE < 0.5 m and RRE < 5 deg (the paper's two-agent criterion
+on the estimates a user would act on); `success_rate_any` counts every estimate that met the
+criterion, verified or not, which is the paper's definition. A frame is *registrable* when, by
+ground truth, both maps already hold at least `min_shared_objects` common objects at the bag
+time of the frame (bags from `sgreg make-bag` list the objects of every snapshot); before that
+no method can be asked to succeed. Times to first success are per directed link (agent ->
+peer), from the link's first registrable frame.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..geometry import invert_transform
+from ..metrics import rre, rte, two_agent_success
+
+MIN_SHARED_OBJECTS = 3
+
+
+@dataclass
+class ResultRecord:
+    t: float              # s since the replay started
+    agent: str
+    peer: str
+    T: np.ndarray         # estimated T_agent^peer
+    verified: bool
+    mode: str
+    reason: str
+    node_matches: int
+    inliers: int
+    total_ms: float
+    confidence: float = float("nan")
+    bag_t: float | None = None   # bag time (s, the bag's simulation clock) the frame falls at
+    evidence: dict = field(default_factory=dict)   # the verdict's evidence, as far as known
+
+
+@dataclass
+class FrameScore:
+    t: float
+    agent: str
+    peer: str
+    mode: str
+    verified: bool
+    reason: str
+    rte: float
+    rre: float
+    success: bool
+    total_ms: float
+    confidence: float
+    correct: bool          # the estimate meets the criterion, verified or not
+    shared_objects: int | None
+    registrable: bool | None
+    evidence: dict
+
+
+@dataclass
+class ReplayScore:
+    query_frames: int
+    success_rate: float
+    success_rate_any: float
+    wrong_verified: int
+    verified: int
+    first_success_s: float | None
+    median_rte_verified: float | None
+    median_rre_verified: float | None
+    coarse_latency_ms: dict
+    dense_latency_ms: dict
+    registrable_frames: int | None = None
+    success_rate_registrable: float | None = None
+    links: dict = field(default_factory=dict)   # "a->b": first registrable / success times
+    frames: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["frames"] = [asdict(f) for f in self.frames]
+        return d
+
+
+def ground_truth(T_scene_map: dict, agent: str, peer: str) -> np.ndarray:
+    """T_agent^peer from each agent's map frame in the scene frame."""
+    return invert_transform(np.asarray(T_scene_map[peer])) @ np.asarray(T_scene_map[agent])
+
+
+def shared_objects(objects: dict, agent: str, peer: str, bag_t: float) -> int:
+    """How many objects both agents' latest snapshots at bag time bag_t hold (objects: per
+    agent a list of [t, ids] in time order, as in a bag's ground_truth.json)."""
+    def held(name):
+        ids = [ids for t, ids in objects.get(name, []) if t <= bag_t + 1e-6]
+        return set(ids[-1]) if ids else set()
+    return len(held(agent) & held(peer))
+
+
+def _latency(values: list[float]) -> dict:
+    if not values:
+        return {"n": 0, "median": None, "p90": None}
+    v = np.asarray(values)
+    return {"n": int(v.size), "median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+
+
+def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict | None = None,
+                 min_shared_objects: int = MIN_SHARED_OBJECTS) -> ReplayScore:
+    """objects: the bag's per-snapshot object lists (None: registrability unknown, old bags)."""
+    frames = []
+    for r in sorted(records, key=lambda r: r.t):
+        gt = ground_truth(T_scene_map, r.agent, r.peer)
+        e_t, e_r = float(rte(r.T, gt)), float(rre(r.T, gt))
+        ok = two_agent_success(r.T, gt)
+        shared = None
+        if objects is not None and r.bag_t is not None:
+            shared = shared_objects(objects, r.agent, r.peer, r.bag_t)
+        frames.append(FrameScore(r.t, r.agent, r.peer, r.mode, r.verified, r.reason, e_t, e_r,
+                                 bool(r.verified and ok), r.total_ms, float(r.confidence), bool(ok),
+                                 shared, None if shared is None else shared >= min_shared_objects,
+                                 dict(r.evidence)))
+    n = len(frames)
+    good = [f for f in frames if f.success]
+    verified = [f for f in frames if f.verified]
+    score = ReplayScore(
+        query_frames=n,
+        success_rate=len(good) / n if n else 0.0,
+        success_rate_any=sum(f.correct for f in frames) / n if n else 0.0,
+        wrong_verified=sum(f.verified and not f.correct for f in frames),
+        verified=len(verified),
+        first_success_s=good[0].t if good else None,
+        median_rte_verified=float(np.median([f.rte for f in verified])) if verified else None,
+        median_rre_verified=float(np.median([f.rre for f in verified])) if verified else None,
+        coarse_latency_ms=_latency([f.total_ms for f in frames if f.mode in ("coarse", "merged")]),
+        dense_latency_ms=_latency([f.total_ms for f in frames if f.mode == "dense"]),
+        frames=frames,
+    )
+    if objects is not None:
+        reg = [f for f in frames if f.registrable]
+        score.registrable_frames = len(reg)
+        score.success_rate_registrable = sum(f.success for f in reg) / len(reg) if reg else None
+        for agent, peer in sorted({(f.agent, f.peer) for f in frames}):
+            fs = [f for f in frames if (f.agent, f.peer) == (agent, peer)]
+            first_reg = next((f.t for f in fs if f.registrable), None)
+            first_ok = next((f.t for f in fs if f.success), None)
+            delay = None
+            if first_reg is not None and first_ok is not None:
+                delay = max(first_ok - first_reg, 0.0)
+            score.links[f"{agent}->{peer}"] = {"first_registrable_s": first_reg,
+                                               "first_success_s": first_ok,
+                                               "time_to_success_s": delay}
+    return score

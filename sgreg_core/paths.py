@@ -1,0 +1,31 @@
+"""Where the project's files are. Relative paths in configs start at the repository, so that
+defaults are the same on every machine: the real scans live in ../shared/data next to the
+repository (never inside it: their terms forbid redistribution).
+
+Public API:
+    REPO                                  the repository root
+    SCANS, RESCAN_GT                      default locations of the real scans and the pseudo
+                                          ground truth between their captures (relative)
+    resolve(path) -> Path                 absolute, relative ones taken from REPO
+    require(path, what) -> Path           resolve, or FileNotFoundError with a one-line reason
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+SCANS = "../shared/data/scans"
+RESCAN_GT = "../shared/data/rescan_gt.json"
+
+
+def resolve(path: str | Path) -> Path:
+    path = Path(path).expanduser()
+    return path if path.is_absolute() else (REPO / path).resolve()
+
+
+def require(path: str | Path, what: str) -> Path:
+    p = resolve(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{what} {p} not found (relative paths start at the repository "
+                                f"{REPO}; the real scans are expected in ../shared/data next to it)")
+    return p

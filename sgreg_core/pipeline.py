@@ -1,0 +1,339 @@
+"""The registration pipeline: two scene graphs (or their encoded features) -> a verified T.
+
+One pipeline for every caller (the `sgreg register` CLI, `sgreg bench-register`, the ROS
+registration node through runtime/peers.py), so that what is benchmarked is what runs.
+
+    dense:  encode both graphs -> node matches (dual softmax) -> point matches (Sinkhorn)
+            -> estimate_pose on the point correspondences
+    coarse: node matches -> estimate_pose on the matched node centers only
+    merged: coarse, plus correspondences kept from an earlier dense estimate (the paper's
+            scheme for query frames that bring only a coarse message)
+
+Every correspondence carries the node match (object pair) it comes from, so the verdict counts
+distinct inlier objects, not points. The verification clouds are all node points of each graph
+(what a dense message carries), so even a coarse estimate is checked against geometry when the
+clouds are at hand. Node centers of partly seen objects move with what was seen, so coarse and
+merged modes have their own PoseConfig with a wider inlier bound and ICP reach. By default
+every estimate that passes the correspondence checks is refined by ICP on the verification
+clouds, and the verdict (pose/verdict.py: evidence, ambiguity, confidence) is taken on the
+better supported of the estimate and its refinement.
+
+Public API:
+    PipelineConfig                 graph, dense / coarse PoseConfig, mode, icp, min_nodes
+    Correspondences                point pairs with the node pair each comes from
+    Registration                   T (SRC -> REF), verdict, confidence, matches, timings
+    register_graphs(model, src_graph, ref_graph, cfg, timings=None) -> Registration
+    build_graphs(src_map, ref_map, cfg, timings) -> (src_graph, ref_graph)   ("graph" stage)
+    register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings, kept)
+    node_cloud(graph) -> (N, 3)    all node points of a graph (the verification cloud)
+    warm_up(model)                 load the text encoder now, so that no timing includes it
+    TIMING_STAGES                  the keys of Registration.timing_ms, in pipeline order
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .net.model import NodeFeatures, SGRegModel
+from .pose import PoseConfig, ReferenceCloud, estimate_pose
+from .pose.verdict import Evidence, VerdictConfig
+from .maps.scene_graph import GraphConfig, build_scene_graph
+from .types import InstanceMap, SceneGraph
+
+MODES = ("dense", "coarse")   # what PipelineConfig.mode asks for; "merged" = coarse + kept
+ICP_MODES = ("never", "coarse", "always")
+# graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
+# (label embeddings, node point sampling, shape + point features, GNN); node_match /
+# point_match: matching; pose: estimation, verification and ICP; total: the whole call.
+TIMING_STAGES = ("graph", "text", "sample", "shape", "gnn", "node_match", "point_match", "pose",
+                 "total")
+
+
+def _dense_pose() -> PoseConfig:
+    """Verification on a 10 cm grid: a third of the 5 cm grid's points, so building the
+    reference (voxelisation and normals, most of the pose time) costs about half, and it
+    separates right from wrong poses as well."""
+    return PoseConfig(verify_voxel=0.1)
+
+
+def _coarse_pose() -> PoseConfig:
+    """Node centers of partial objects are off by decimetres: wider bound, fewer inliers, and
+    an ICP reach that covers the error of a pose from centers. Verification and ICP on 600
+    source points keep a coarse estimate near 20 ms with the same recall as on 1500."""
+    return PoseConfig(noise_bound=0.3, nms_radius=0.0, verdict=VerdictConfig(min_inliers=4, min_objects=4),
+                      clique_deltas=(0.2, 0.4, 0.8), verify_voxel=0.1, icp_distance=0.2,
+                      verify_max_points=600, icp_max_iters=15)
+
+
+@dataclass
+class PipelineConfig:
+    """graph:       scene-graph construction (only used when starting from instance maps).
+    pose:           estimator settings of dense mode (point correspondences).
+    coarse_pose:    estimator settings of coarse mode (node-center correspondences).
+    mode:           "dense" (points) or "coarse" (node centers only, merged with kept
+                    correspondences when the caller has some).
+    icp:            when the estimate is refined with point-to-plane ICP on the
+                    verification clouds before the verdict: "never", "coarse" (coarse mode
+                    only) or "always" (default: even centimetre-accurate point matches leave
+                    a degree of rotation that costs a low-overlap pair its support); overrides
+                    the pose configs' own `icp`.
+    min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes")."""
+
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    pose: PoseConfig = field(default_factory=_dense_pose)
+    coarse_pose: PoseConfig = field(default_factory=_coarse_pose)
+    mode: str = "dense"
+    icp: str = "always"
+    min_nodes: int = 3
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.icp not in ICP_MODES:
+            raise ValueError(f"icp must be one of {ICP_MODES}, got {self.icp!r}")
+
+    def pose_config(self) -> PoseConfig:
+        icp = self.icp == "always" or (self.icp == "coarse" and self.mode == "coarse")
+        return replace(self.pose if self.mode == "dense" else self.coarse_pose, icp=icp)
+
+    def with_verdict(self, **changes) -> "PipelineConfig":
+        """The same config with verdict settings (pose/verdict.VerdictConfig) changed in both
+        the dense and the coarse pose configs."""
+        return replace(self, pose=replace(self.pose, verdict=replace(self.pose.verdict, **changes)),
+                       coarse_pose=replace(self.coarse_pose,
+                                           verdict=replace(self.coarse_pose.verdict, **changes)))
+
+
+@dataclass
+class Correspondences:
+    """Point pairs for the estimator: src_xyz / ref_xyz (c, 3) float64 in each graph's frame,
+    score (c,) confidence, pairs (c, 2) int64 the (src node id, ref node id) of the node match
+    each comes from."""
+
+    src_xyz: np.ndarray
+    ref_xyz: np.ndarray
+    score: np.ndarray
+    pairs: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.score.shape[0])
+
+    def subset(self, mask: np.ndarray) -> "Correspondences":
+        return Correspondences(self.src_xyz[mask], self.ref_xyz[mask], self.score[mask],
+                               self.pairs[mask])
+
+    @staticmethod
+    def concat(a: "Correspondences", b: "Correspondences") -> "Correspondences":
+        return Correspondences(*(np.concatenate([x, y]) for x, y in
+                                 ((a.src_xyz, b.src_xyz), (a.ref_xyz, b.ref_xyz),
+                                  (a.score, b.score), (a.pairs, b.pairs))))
+
+    def groups(self) -> np.ndarray:
+        """(c,) one integer per distinct node pair."""
+        if len(self) == 0:
+            return np.zeros(0, np.int64)
+        return np.unique(self.pairs, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
+@dataclass
+class Registration:
+    """Outcome of one registration.
+
+    T:               (4, 4) float64 mapping SRC points into REF's frame (ICP-refined when
+                     PipelineConfig.icp asks for it and ICP kept the fitness); identity when
+                     nothing was estimated.
+    success:         True only when the verdict accepted the estimate.
+    reason:          "ok", "too_few_nodes", "no_node_matches" or the estimator's reason
+                     (pose/verdict.py REASONS).
+    confidence:      P(T right | evidence) in [0, 1] (pose/verdict.py), 0 without estimate.
+    evidence:        what the verdict was taken on (pose.verdict.Evidence).
+    mode:            "dense", "coarse" or "merged".
+    node_pairs:      (m, 2) int64 matched (src node id, ref node id); node_scores (m,).
+    corr:            the Correspondences handed to the estimator (points in dense mode, node
+                     centers in coarse mode, plus the kept ones in merged mode).
+    inlier_mask:     (c,) bool, inliers of the estimator's pose (before any ICP).
+    inliers, inlier_ratio: their count and share.
+    inlier_nodes:    node matches with at least one inlier correspondence.
+    T_competitor:    the best competing hypothesis the verdict weighed (None: none found).
+    fitness:         verification fitness of T: share of SRC points on REF surfaces (NaN
+                     without clouds).
+    footprint_fitness: the same share among the SRC points that land on REF's footprint, the
+                     measure of the verdict (pose/verify.py; NaN without clouds).
+    refined:         True when T is the ICP refinement.
+    timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
+    pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp)."""
+
+    T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    success: bool = False
+    reason: str = "too_few_nodes"
+    confidence: float = 0.0
+    evidence: Evidence = field(default_factory=Evidence)
+    mode: str = "dense"
+    node_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    node_scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    corr: Correspondences = field(default_factory=lambda: Correspondences(
+        np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64)))
+    inlier_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    inlier_nodes: int = 0
+    T_competitor: np.ndarray | None = None
+    fitness: float = float("nan")
+    footprint_fitness: float = float("nan")
+    refined: bool = False
+    timing_ms: dict[str, float] = field(default_factory=dict)
+    pose_timing_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def node_matches(self) -> int:
+        return int(self.node_pairs.shape[0])
+
+    @property
+    def correspondences(self) -> int:
+        return len(self.corr)
+
+    def inlier_corr(self) -> Correspondences:
+        """The correspondences the estimate explains (what a runtime keeps for merging)."""
+        return self.corr.subset(self.inlier_mask)
+
+    def to_json(self) -> dict:
+        """The result JSON of docs/ARCHITECTURE.md ("Contracts") (+ reason, mode, counts, node pairs)."""
+        return {
+            "T": np.asarray(self.T, np.float64).tolist(),
+            "success": bool(self.success),
+            "reason": self.reason,
+            "confidence": float(self.confidence),
+            "mode": self.mode,
+            "node_matches": self.node_matches,
+            "node_pairs": self.node_pairs.tolist(),
+            "correspondences": self.correspondences,
+            "inliers": int(self.inliers),
+            "inlier_ratio": float(self.inlier_ratio),
+            "inlier_nodes": int(self.inlier_nodes),
+            "fitness": _finite_or_none(self.fitness),
+            "footprint_fitness": _finite_or_none(self.footprint_fitness),
+            "refined": bool(self.refined),
+            "evidence": {k: _finite_or_none(v) if isinstance(v, float) else v
+                         for k, v in vars(self.evidence).items()},
+            "T_competitor": None if self.T_competitor is None else
+            np.asarray(self.T_competitor, np.float64).tolist(),
+            "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
+        }
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+def node_cloud(graph: SceneGraph) -> np.ndarray:
+    """All node points of a graph, (N, 3) float32 (the verification cloud)."""
+    if graph.num_nodes == 0:
+        return np.zeros((0, 3), np.float32)
+    return np.concatenate(graph.points).astype(np.float32, copy=False)
+
+
+def warm_up(model: SGRegModel) -> None:
+    """Load the text encoder's weights (seconds, on first use) so that registration timings
+    measure registration."""
+    model.text_encoder.encode(["object"])
+
+
+def _add(timings: dict, stage: str, t0: float) -> None:
+    timings[stage] = timings.get(stage, 0.0) + 1e3 * (time.perf_counter() - t0)
+
+
+def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: NodeFeatures,
+                      src_cloud: np.ndarray | None = None,
+                      ref_cloud: np.ndarray | ReferenceCloud | None = None,
+                      cfg: PipelineConfig | None = None,
+                      timings: dict | None = None,
+                      kept: Correspondences | None = None) -> Registration:
+    """Match encoded graphs and estimate T (SRC -> REF). Dense mode needs dense features.
+
+    src_cloud / ref_cloud: verification clouds in each graph's frame (all node points;
+    ref_cloud may be a prebuilt pose.ReferenceCloud); without them the verdict rests on the
+    correspondences only. timings: stages already spent by the caller (graph, encoding) are
+    kept and the matching / pose stages added; "total" is left to the caller when it passes
+    timings in (it knows where it started). kept: coarse mode only, correspondences from an
+    earlier dense estimate merged with the node centers (mode "merged")."""
+    cfg = cfg or PipelineConfig()
+    t_start = time.perf_counter()
+    own_total = timings is None
+    timings = {} if timings is None else timings
+    out = Registration(mode=cfg.mode, timing_ms=timings)
+    if min(src_feats.num_nodes, ref_feats.num_nodes) < cfg.min_nodes:
+        return _finish(out, timings, t_start, own_total)
+    src_ids, ref_ids = np.asarray(src_feats.node_ids), np.asarray(ref_feats.node_ids)
+    if cfg.mode == "dense":
+        dm = model.match_dense(src_feats, ref_feats, timings)
+        nodes, pts = dm.nodes, dm.points
+        pair_idx = np.asarray(pts.node_match, np.int64)
+        corr = Correspondences(np.asarray(pts.src_xyz, np.float64), np.asarray(pts.ref_xyz, np.float64),
+                               np.asarray(pts.score, np.float64),
+                               np.stack([src_ids[nodes.src_idx[pair_idx]],
+                                         ref_ids[nodes.ref_idx[pair_idx]]], 1).astype(np.int64))
+    else:
+        nodes = model.match_coarse(src_feats, ref_feats, timings)
+        corr = Correspondences(np.asarray(nodes.src_xyz, np.float64), np.asarray(nodes.ref_xyz, np.float64),
+                               np.asarray(nodes.score, np.float64),
+                               np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64))
+        if kept is not None and len(kept):
+            corr = Correspondences.concat(corr, kept)
+            out.mode = "merged"
+    out.node_pairs = np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64)
+    out.node_scores = np.asarray(nodes.score, np.float32)
+    out.corr = corr
+    out.inlier_mask = np.zeros(len(corr), bool)
+    if len(corr) == 0:
+        out.reason = "no_node_matches"
+        return _finish(out, timings, t_start, own_total)
+
+    t0 = time.perf_counter()
+    groups = corr.groups()
+    res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
+                        cfg.pose_config(), groups=groups)
+    _add(timings, "pose", t0)
+    out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
+    out.confidence, out.evidence, out.T_competitor = res.confidence, res.evidence, res.T_competitor
+    out.inlier_mask = res.inlier_mask
+    out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
+    out.inlier_nodes = int(np.unique(groups[res.inlier_mask]).size)
+    out.fitness, out.footprint_fitness = float(res.fitness), float(res.footprint_fitness)
+    out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
+    return _finish(out, timings, t_start, own_total)
+
+
+def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:
+    if own_total:
+        timings["total"] = 1e3 * (time.perf_counter() - t_start)
+    return out
+
+
+def register_graphs(model: SGRegModel, src_graph: SceneGraph, ref_graph: SceneGraph,
+                    cfg: PipelineConfig | None = None,
+                    timings: dict | None = None) -> Registration:
+    """Encode both graphs and register them; timings gets the encoding stages and "total"
+    (from this call's start, plus whatever the caller already put in "graph")."""
+    cfg = cfg or PipelineConfig()
+    t_start = time.perf_counter()
+    timings = {} if timings is None else timings
+    dense = cfg.mode == "dense"
+    src = model.encode(src_graph, dense=dense, timings=timings)
+    ref = model.encode(ref_graph, dense=dense, timings=timings)
+    out = register_features(model, src, ref, node_cloud(src_graph), node_cloud(ref_graph), cfg,
+                            timings)
+    timings["total"] = timings.get("graph", 0.0) + 1e3 * (time.perf_counter() - t_start)
+    return out
+
+
+def build_graphs(src_map: InstanceMap, ref_map: InstanceMap, cfg: PipelineConfig | None = None,
+                 timings: dict | None = None) -> tuple[SceneGraph, SceneGraph]:
+    """Scene graphs of both instance maps; their build time goes to timings["graph"]."""
+    cfg = cfg or PipelineConfig()
+    t0 = time.perf_counter()
+    graphs = build_scene_graph(src_map, cfg.graph), build_scene_graph(ref_map, cfg.graph)
+    if timings is not None:
+        _add(timings, "graph", t0)
+    return graphs

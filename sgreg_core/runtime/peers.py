@@ -1,0 +1,447 @@
+"""Per-peer registration: the coarse-to-fine protocol of SG-Reg (paper section VI) as a plain
+state machine, with every failure of docs/ARCHITECTURE.md ("Failure behaviour") turned into a counter and a one-line
+reason instead of an exception.
+
+For each peer: coarse graphs arrive at ~1 Hz -> an estimate from node centers (merged with the
+point correspondences kept from the link's last dense estimate) and, when enough nodes match
+and the minimum interval has passed, a dense request. A dense answer -> point matching -> a
+dense estimate. Every estimate runs the one pipeline of pipeline.py (same code and verdict as
+`sgreg register` and the benchmarks), with the peer's graph as source and the agent's own as
+reference, so verification checks the peer's sampled points against the agent's full cloud.
+
+An estimate that passes the verdict is not yet published as verified. The link to a peer is:
+- none -> candidate: a first estimate that passes the verdict;
+- candidate -> confirmed: a second one, made from other data (a map of either agent with other
+  content, or the other kind of correspondences: points of a dense answer against node centers
+  of a coarse graph) and agreeing with the candidate (within agree_m / agree_deg); the transform is
+  published from then on, for every estimate that passes the verdict and agrees with the link;
+- confirmed -> none: an estimate made from new data (not merged with kept correspondences)
+  that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
+  becomes the new candidate and nothing is published for that peer until a link is confirmed
+  again.
+Merged estimates rest on kept correspondences, which are no new evidence: they can keep a
+confirmed link but never confirm or contradict one. The kept correspondences are re-checked
+whenever either map changes: when the nodes they come from have moved in either map (a
+front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
+the peer's dense cloud, and every merged estimate that fails the verdict drops them too.
+Without a dense cloud of the peer nothing is verified at all.
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from ..config import param
+from ..geometry import invert_transform
+from ..metrics import rre, rte
+from ..net.model import NodeFeatures, SGRegModel
+from ..pipeline import Correspondences, PipelineConfig, Registration, register_features
+from .agent import AgentCore
+from .messages import DenseRequestMessage, Estimate, GraphMessage
+
+
+@dataclass
+class PeersConfig:
+    """min_node_matches: node matches needed before asking a peer for dense data.
+    min_request_interval_s: at most one dense request per peer per this interval once a link to
+        it is confirmed.
+    search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
+        first link, and confirm it, in seconds.
+    request_timeout_s: an unanswered request is retried after this, then after
+        timeout * retry_backoff^k, up to max_retries; then the link gives up until the next
+        interval.
+    min_coarse_matches: node matches needed to attempt a coarse estimate.
+    restart_sequence_max: a sequence that goes back to at most this value means the peer
+        restarted (its map frame is new); any other step back is an out-of-order message.
+    max_nodes / max_points: bigger messages are refused (oversized).
+    keep_correspondences: keep the inlier point correspondences of the link's last dense
+        estimate and merge them with node-center matches when only coarse data arrives (the
+        paper's scheme).
+    confirm: publish a link only once two estimates from different data agree (see the
+        module docstring); False publishes every estimate that passes the verdict.
+    agree_m / agree_deg: two estimates agree when they differ by less than this.
+    kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
+        nodes they come from moved by more than this (median, in either map) since.
+    pipeline: the one registration pipeline (pipeline.PipelineConfig): dense settings for
+        dense answers, coarse settings for coarse and merged estimates, ICP before the verdict.
+        The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
+        that land on the agent's footprint to lie on its surfaces (pose/verify.py)."""
+
+    min_node_matches: int = param(3, "node matches needed before a dense request", 1, 1000)
+    min_request_interval_s: float = param(5.0, "at most one dense request per peer per interval once "
+                                          "a link to it is confirmed", 0.0, 3600.0)
+    search_request_interval_s: float = param(2.0, "the request interval while no link to the peer "
+                                             "is confirmed", 0.0, 3600.0)
+    request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
+                                     0.1, 600.0)
+    retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0)
+    max_retries: int = param(3, "retries before giving up until the next interval", 0, 100)
+    min_coarse_matches: int = param(4, "node matches needed for a coarse estimate", 3, 1000)
+    restart_sequence_max: int = 1
+    max_nodes: int = param(2000, "bigger graphs are refused", 10, 100_000)
+    max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000)
+    keep_correspondences: bool = param(True, "merge the last dense correspondences into coarse "
+                                       "estimates")
+    confirm: bool = param(True, "publish a link only once two estimates from different data agree")
+    agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
+    agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
+    kept_max_shift_m: float = 0.5
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+
+
+@dataclass
+class _PendingRequest:
+    sequence: int
+    coarse_sequence: int
+    node_ids: np.ndarray
+    sent_at: float
+    retries: int = 0
+
+
+@dataclass
+class Kept:
+    """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
+    had in each map then, to notice when either map moves under them."""
+
+    corr: Correspondences
+    peer_nodes: dict[int, np.ndarray]
+    own_nodes: dict[int, np.ndarray]
+
+
+def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
+    index = {int(i): k for k, i in enumerate(node_ids)}
+    return {int(i): np.asarray(centers[index[int(i)]], np.float64) for i in np.unique(ids) if int(i) in index}
+
+
+def _median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.ndarray) -> float:
+    """Median movement of the nodes in `then` (inf when fewer than half of them are left)."""
+    now = _centers_of(np.fromiter(then, np.int64), node_ids, centers)
+    if 2 * len(now) < len(then):
+        return float("inf")
+    return float(np.median([np.linalg.norm(now[i] - then[i]) for i in now])) if now else float("inf")
+
+
+@dataclass
+class Hypothesis:
+    """An estimate that passed the verdict. T: T_agent^peer; data: what it was made from (own
+    graph digest, peer graph digest, "dense" or "coarse"); kept: its inlier correspondences
+    (peer -> own) when dense."""
+
+    T: np.ndarray
+    data: tuple[str, str, str]
+    mode: str
+    kept: Kept | None = None
+
+
+@dataclass
+class PeerLink:
+    """What the agent knows about one peer."""
+
+    peer_id: str
+    coarse: GraphMessage | None = None
+    dense: GraphMessage | None = None
+    dense_cloud: np.ndarray | None = None
+    kept: Kept | None = None     # peer -> own inliers kept for merged estimates
+    pending: _PendingRequest | None = None
+    last_request_at: float = -np.inf
+    last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
+    candidate: Hypothesis | None = None
+    confirmed: Hypothesis | None = None
+
+    @property
+    def state(self) -> str:
+        return "confirmed" if self.confirmed else "candidate" if self.candidate else "none"
+
+
+class Peers:
+    """All peers of one agent: feed take_own_map / on_coarse / on_dense / on_tick; read links
+    and counters."""
+
+    def __init__(self, cfg: PeersConfig, agent: AgentCore, model: SGRegModel,
+                 log: Callable[[str], None] = print):
+        self.cfg = cfg
+        self.agent = agent
+        self.model = model
+        self.log = log
+        self.links: dict[str, PeerLink] = {}       # peer id -> what the agent knows of it
+        self.counters: Counter = agent.counters     # one table per node: the agent's
+        self._request_seq = 0
+        self._said: set = set()
+        self._dense_cfg = replace(cfg.pipeline, mode="dense")
+        self._coarse_cfg = replace(cfg.pipeline, mode="coarse")
+
+    # ---- inputs --------------------------------------------------------------------------
+    def take_own_map(self, imap, map_sequence: int, stamp: float) -> str | None:
+        """The agent's own new instance map (AgentCore.take_map), and its reference cloud
+        (voxels, KD-tree, normals, footprint) built now, once per map update, so that no
+        estimate waits for it. None when taken, else the one-line reason it was refused."""
+        why = self.agent.take_map(imap, map_sequence, stamp)
+        if why is None:
+            self.agent.reference_cloud(self.cfg.pipeline.pose)
+        return why
+
+    def on_coarse(self, msg: GraphMessage, now: float) -> tuple[Estimate | None, DenseRequestMessage | None]:
+        if msg.agent_id == self.agent.cfg.name:
+            return None, None
+        link = self._accept(msg, "coarse")
+        if link is None:
+            return None, None
+        link.coarse = msg
+        if not self.agent.ready:
+            self._count("own_map_not_ready")
+            return None, None
+        timings: dict = {}
+        t0 = time.perf_counter()
+        self._recheck_kept(link, msg)
+        kept = link.kept.corr if link.kept is not None else None
+        reg = register_features(self.model, msg.nodes, self.agent.features,
+                                link.dense_cloud, self._own_reference(link.dense_cloud),
+                                self._coarse_cfg, timings, kept=kept)
+        estimate = self._judge(link, reg, msg.digest, timings, t0)
+        request = self._maybe_request(link, reg, now)
+        return estimate, request
+
+    def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
+        if msg.agent_id == self.agent.cfg.name:
+            return None
+        link = self._accept(msg, "dense")
+        if link is None:
+            return None
+        if link.pending is not None and msg.requester == self.agent.cfg.name \
+                and msg.request_sequence == link.pending.sequence:
+            link.pending = None
+        if not self.agent.ready:
+            self._count("own_map_not_ready")
+            return None
+        timings: dict = {}
+        t0 = time.perf_counter()
+        peer = self._dense_features(msg, timings)
+        link.dense, link.dense_cloud = msg, msg.points
+        reg = register_features(self.model, peer, self.agent.features, msg.points,
+                                self._own_reference(msg.points), self._dense_cfg, timings)
+        # a dense answer holds only the requested nodes: name the peer's map by its coarse graph
+        same_map = link.coarse is not None and link.coarse.map_sequence == msg.map_sequence
+        peer_digest = link.coarse.digest if same_map else msg.digest
+        return self._judge(link, reg, peer_digest, timings, t0, dense=msg)
+
+    def on_tick(self, now: float) -> list[DenseRequestMessage]:
+        """Retries of unanswered requests (with back-off), and giving up on silent peers."""
+        out = []
+        for link in self.links.values():
+            p = link.pending
+            if p is None:
+                continue
+            deadline = p.sent_at + self.cfg.request_timeout_s * self.cfg.retry_backoff ** p.retries
+            if now < deadline:
+                continue
+            if p.retries >= self.cfg.max_retries:
+                self._count("request_gave_up")
+                self.log(f"peer {link.peer_id} did not answer dense request {p.sequence} after "
+                         f"{p.retries} retries; giving up until the next request interval")
+                link.pending = None
+                link.last_request_at = now
+                continue
+            self._count("request_retry")
+            self._request_seq += 1
+            p.sequence, p.retries, p.sent_at = self._request_seq, p.retries + 1, now
+            out.append(self._request_message(link, p))
+        return out
+
+    # ---- validation ----------------------------------------------------------------------
+    def _accept(self, msg: GraphMessage, stream: str) -> PeerLink | None:
+        """The peer's link if the message is usable; else None, with a counter and a log line."""
+        problem = self._check(msg)
+        if problem is not None:
+            counter, text = problem
+            self._count(counter)
+            self._say_once((counter, msg.agent_id), f"{stream} graph from {msg.agent_id!r} "
+                           f"(seq {msg.sequence}) refused: {text}")
+            return None
+        link = self.links.setdefault(msg.agent_id, PeerLink(msg.agent_id))
+        last = link.last_seq.get(stream)
+        if last is not None and msg.sequence <= last:
+            if msg.sequence <= self.cfg.restart_sequence_max and last > msg.sequence:
+                self._count("peer_restart")
+                self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {msg.sequence}): "
+                         "forgetting its old map")
+                link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
+            else:
+                counter = "duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
+                self._count(counter)
+                self.log(f"{stream} graph from {msg.agent_id} dropped: sequence {msg.sequence} "
+                         f"after {last} ({counter.replace('_', ' ')})")
+                return None
+        link.last_seq[stream] = msg.sequence
+        return link
+
+    def _check(self, msg: GraphMessage) -> tuple[str, str] | None:
+        if msg.weights_id != self.agent.weights_id:
+            return ("rejected_weights", f"features from weights {msg.weights_id!r}, this agent "
+                    f"runs {self.agent.weights_id!r}")
+        n = msg.num_nodes
+        if n > self.cfg.max_nodes or (msg.points is not None and msg.points.shape[0] > self.cfg.max_points):
+            return "oversized_message", f"{n} nodes / points over max_nodes={self.cfg.max_nodes}, max_points={self.cfg.max_points}"
+        desc, centers = msg.nodes.descriptor, msg.nodes.centers
+        dim = self.agent.features.descriptor.shape[1] if self.agent.ready else desc.shape[1]
+        if desc.ndim != 2 or desc.shape != (n, dim) or centers.shape != (n, 3):
+            return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
+        arrays = [desc, centers] + ([msg.points] if msg.points is not None else [])
+        if not all(np.isfinite(a).all() for a in arrays):
+            return "invalid_values", "NaN or inf in features, centers or points"
+        if n < self.agent.cfg.min_nodes:
+            return "too_few_nodes", f"{n} nodes (min_nodes={self.agent.cfg.min_nodes})"
+        if msg.points is not None:
+            if msg.point_node is None or msg.point_node.shape[0] != msg.points.shape[0] \
+                    or (msg.point_node.size and (msg.point_node.min() < 0 or msg.point_node.max() >= n)):
+                return "bad_points", "points name nodes that are not in the message"
+        return None
+
+    # ---- estimation ----------------------------------------------------------------------
+    def _own_reference(self, peer_cloud):
+        """The own map's verification cloud, when there is a peer cloud to check against it."""
+        return self.agent.reference_cloud(self.cfg.pipeline.pose) if peer_cloud is not None else None
+
+    def _dense_features(self, msg: GraphMessage, timings: dict) -> NodeFeatures:
+        """The peer's points per node, padded to the model's K, and their point features Z."""
+        t0 = time.perf_counter()
+        k = self.model.cfg.shape.points_per_node
+        n = msg.num_nodes
+        order = np.argsort(msg.point_node, kind="stable")
+        node = msg.point_node[order]
+        rank = np.arange(node.size) - np.searchsorted(node, node)
+        keep = rank < k
+        points = np.zeros((n, k, 3), np.float32)
+        valid = np.zeros((n, k), bool)
+        points[node[keep], rank[keep]] = msg.points[order][keep]
+        valid[node[keep], rank[keep]] = True
+        nodes = msg.nodes
+        z = self.model.point_features(points, valid, nodes.centers, nodes.descriptor)
+        timings["shape"] = timings.get("shape", 0.0) + 1e3 * (time.perf_counter() - t0)
+        return replace(nodes, points=points, valid=valid, z=z)
+
+    def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
+        """Drop the kept correspondences and the peer's dense cloud when the nodes they come
+        from moved in either map since they were kept."""
+        if link.kept is None:
+            return
+        own = self.agent.features
+        shift = max(_median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
+                    _median_shift(link.kept.own_nodes, own.node_ids, own.centers))
+        if shift > self.cfg.kept_max_shift_m:
+            self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
+                     f"{shift:.2f} m since the dense exchange")
+            self._count("kept_dropped")
+            link.kept, link.dense_cloud = None, None
+
+    def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
+               t0: float, dense: GraphMessage | None = None) -> Estimate:
+        """The estimate as published: the verdict of the pipeline, then the link's rules."""
+        timings["total"] = 1e3 * (time.perf_counter() - t0)
+        self._count(f"estimates_{reg.mode}")
+        T = invert_transform(reg.T)          # the pipeline maps peer -> own; publish own -> peer
+        if reg.mode == "coarse" and reg.node_matches < self.cfg.min_coarse_matches:
+            reason = "too_few_matches"
+        elif reg.success and link.dense_cloud is None:
+            reason = "no_peer_cloud_to_verify"
+        else:
+            kept = None
+            if dense is not None and reg.success and self.cfg.keep_correspondences:
+                corr, own = reg.inlier_corr(), self.agent.features
+                kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
+                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers))
+            kind = "dense" if reg.mode == "dense" else "coarse"
+            hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
+            reason = self._link_rules(link, reg, hyp)
+        if reason != "ok":
+            self._count(reason)
+        est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
+                       link=link.state, registration=reg,
+                       peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
+                       peer_dense_sequence=dense.sequence if dense is not None else
+                       (link.dense.sequence if link.dense else 0), timing_ms=timings)
+        if est.verified:
+            self._count("verified")
+        return est
+
+    def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
+        return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg
+
+    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis) -> str:
+        """"ok" when the estimate may be published as verified, else why not; updates the link."""
+        merged = reg.mode == "merged"
+        if not reg.success:
+            if merged:   # the kept correspondences no longer hold on the current maps
+                link.kept = None
+                self._count("kept_dropped")
+            return reg.reason
+        if not self.cfg.confirm:
+            link.confirmed = hyp
+            self._keep(link, hyp)
+            return "ok"
+        if link.confirmed is not None:
+            if self._agree(hyp.T, link.confirmed.T):
+                link.confirmed = Hypothesis(hyp.T, hyp.data, hyp.mode, None)
+                self._keep(link, hyp)
+                return "ok"
+            if merged:
+                link.kept = None
+                return "disagrees_with_link"
+            d = rte(hyp.T, link.confirmed.T), rre(hyp.T, link.confirmed.T)
+            self.log(f"link to {link.peer_id} withdrawn: a {reg.mode} estimate from new data "
+                     f"({reg.inliers} inliers on {reg.evidence.objects} objects) lies "
+                     f"{d[0]:.2f} m / {d[1]:.1f} deg from it")
+            self._count("withdrawn")
+            link.confirmed, link.kept, link.candidate = None, None, hyp
+            return "contradicted"
+        if merged:      # kept correspondences without a confirmed link: nothing new
+            return "awaiting_confirmation"
+        cand = link.candidate
+        if cand is not None and self._agree(hyp.T, cand.T):
+            if cand.data != hyp.data:
+                link.confirmed, link.candidate = hyp, None
+                self._keep(link, hyp if hyp.kept is not None else cand)
+                self._count("confirmed")
+                return "ok"
+            if cand.kept is None:   # same data again: no confirmation, but keep dense inliers
+                cand.kept = hyp.kept
+            return "awaiting_confirmation"
+        link.candidate = hyp
+        return "awaiting_confirmation"
+
+    def _keep(self, link: PeerLink, hyp: Hypothesis) -> None:
+        if hyp.kept is not None and len(hyp.kept.corr):
+            link.kept = hyp.kept
+
+    # ---- dense requests ------------------------------------------------------------------
+    def _maybe_request(self, link: PeerLink, reg: Registration, now: float) -> DenseRequestMessage | None:
+        """Ask for the points of the peer's matched nodes, rate-limited, one request at a time."""
+        if reg.node_matches < self.cfg.min_node_matches or link.pending is not None:
+            return None
+        interval = (self.cfg.min_request_interval_s if link.confirmed is not None
+                    else self.cfg.search_request_interval_s)
+        if now - link.last_request_at < interval:
+            return None
+        self._request_seq += 1
+        wanted = np.unique(reg.node_pairs[:, 0])   # the peer's graph is the source
+        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now)
+        link.last_request_at = now
+        self._count("requests")
+        return self._request_message(link, link.pending)
+
+    def _request_message(self, link: PeerLink, p: _PendingRequest) -> DenseRequestMessage:
+        return DenseRequestMessage(from_agent=self.agent.cfg.name, to_agent=link.peer_id,
+                                   sequence=p.sequence, coarse_sequence=p.coarse_sequence,
+                                   weights_id=self.agent.weights_id, node_ids=p.node_ids)
+
+    # ---- bookkeeping ---------------------------------------------------------------------
+    def _count(self, name: str) -> None:
+        self.counters[name] += 1
+
+    def _say_once(self, key, text: str) -> None:
+        if key not in self._said:
+            self._said.add(key)
+            self.log(text)

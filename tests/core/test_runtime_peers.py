@@ -1,0 +1,233 @@
+"""The per-peer registration state machine (no ROS): the coarse-to-fine protocol and every
+failure case of docs/ARCHITECTURE.md ("Failure behaviour") as a counter and a reason, never an exception."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sgreg_core.geometry import yaw_transform
+from sgreg_core.metrics import rre, rte
+from sgreg_core.net.model import load_model
+from sgreg_core.net.testing import moved_graph, toy_graph
+from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.peers import Peers, PeersConfig
+from sgreg_core.simulation.synth import SynthConfig, generate_scene
+from sgreg_core.types import InstanceMap
+
+T_GT = yaw_transform(np.radians(140.0), (3.0, -2.0, 0.1))   # maps a's frame into b's
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()   # the shipped weights and the bundled MiniLM: what the nodes run
+
+
+@pytest.fixture(scope="module")
+def graphs():
+    rng = np.random.default_rng(5)
+    g = toy_graph(rng, n=24)
+    return g, moved_graph(g, T_GT, rng, jitter=0.005)
+
+
+def make_agents(model, graphs, cfg=None):
+    ga, gb = graphs
+    a = AgentCore(AgentConfig(name="a"), model)
+    a.set_graph(ga, 1, 0.0)
+    b = AgentCore(AgentConfig(name="b"), model)
+    b.set_graph(gb, 1, 0.0)
+    logs = []
+    reg = Peers(cfg or PeersConfig(), a, model, log=logs.append)
+    return a, b, reg, logs
+
+
+def test_coarse_then_dense_then_confirmation_gives_a_verified_transform(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert est is not None and est.mode == "coarse" and not est.verified
+    assert est.reason == "no_peer_cloud_to_verify"        # nothing to check the pose against
+    assert req is not None and req.to_agent == "b" and req.from_agent == "a" and len(req.node_ids) >= 3
+    dense = b.dense_message(1, req.node_ids, "a", req.sequence)
+    est = reg.on_dense(dense, now=0.5)
+    assert est.mode == "dense" and not est.verified
+    assert est.reason == "awaiting_confirmation" and est.link == "candidate"
+    assert rte(est.T, T_GT) < 0.2 and est.confidence > 0.5
+    assert reg.links["b"].pending is None
+    # node centers of the next coarse graph are other evidence than the points: it confirms
+    est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified and est.reason == "ok" and est.link == "confirmed", est.reason
+    assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
+    assert reg.counters["confirmed"] == 1
+    # the next coarse message merges the dense inliers kept with the link, and is verified
+    est, req = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert est.mode == "merged" and est.verified
+    assert rte(est.T, T_GT) < 0.2
+    assert req is None   # min_request_interval_s has not passed
+
+
+def test_the_same_data_twice_does_not_confirm(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    for seq in (1, 2):   # two dense answers from the same maps
+        est = reg.on_dense(b.dense_message(seq, req.node_ids, "a", req.sequence), now=seq)
+        assert est.reason == "awaiting_confirmation", est.reason
+    b.set_graph(graphs[1], 2, 3.0)    # b's map sequence moves on, its content does not
+    est = reg.on_dense(b.dense_message(3, req.node_ids, "a", req.sequence), now=3.0)
+    assert est.reason == "awaiting_confirmation"
+    # new content (b's map drifted by 2 cm): new evidence
+    moved = moved_graph(graphs[1], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(1))
+    b.set_graph(moved, 3, 4.0)
+    est = reg.on_dense(b.dense_message(4, req.node_ids, "a", req.sequence), now=4.0)
+    assert est.verified, est.reason
+
+
+def confirmed_link(model, graphs, cfg=None):
+    """a's peers with a confirmed link to b (a dense candidate, then a coarse estimate)."""
+    a, b, reg, logs = make_agents(model, graphs, cfg)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified, est.reason
+    return a, b, reg, logs
+
+
+def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
+    a, b, reg, logs = confirmed_link(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    # b's map frame moves (e.g. its SLAM re-anchored): a well-supported estimate from new data
+    # now disagrees with the published link
+    W = yaw_transform(np.radians(60.0), (2.0, 1.0, 0.0))
+    rng = np.random.default_rng(9)
+    moved = moved_graph(graphs[1], W, rng, jitter=0.002)
+    b.set_graph(moved, 3, 2.0)
+    reg.on_coarse(b.coarse_message(3), now=2.0)
+    req = reg.links["b"].pending         # a's outstanding request, answered from b's new map
+    assert req is not None
+    est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.5)
+    assert est.reason == "contradicted" and not est.verified and est.link == "candidate"
+    assert reg.counters["withdrawn"] == 1 and any("withdrawn" in line for line in logs)
+    assert reg.links["b"].kept is None
+    # the new pose is published once other evidence (here node centers) confirms it
+    est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
+    assert est.verified and est.mode == "coarse" and rte(est.T, W @ T_GT) < 0.2
+
+
+def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, graphs):
+    a, b, reg, _ = confirmed_link(model, graphs)
+    assert reg.links["b"].kept is not None
+    # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
+    # cloud they were verified on, no longer describe b's map
+    b.set_graph(moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3)), 2, 2.0)
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
+    assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
+    assert reg.counters["kept_dropped"] == 1
+
+
+def test_duplicate_out_of_order_and_restart(model, graphs):
+    a, b, reg, logs = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(5), now=0.0)
+    assert reg.on_coarse(b.coarse_message(5), now=0.1) == (None, None)
+    assert reg.counters["duplicate_sequence"] == 1
+    assert reg.on_coarse(b.coarse_message(3), now=0.2) == (None, None)
+    assert reg.counters["out_of_order_sequence"] == 1
+    est, _ = reg.on_coarse(b.coarse_message(0), now=0.3)   # b restarted
+    assert reg.counters["peer_restart"] == 1 and est is not None
+    assert any("restarted" in line for line in logs)
+
+
+def test_other_weights_are_refused_and_said_once(model, graphs):
+    a, b, reg, logs = make_agents(model, graphs)
+    for seq in (1, 2, 3):
+        msg = b.coarse_message(seq)
+        msg.weights_id = "000000000000"
+        assert reg.on_coarse(msg, now=float(seq)) == (None, None)
+    assert reg.counters["rejected_weights"] == 3
+    assert sum("weights" in line for line in logs) == 1
+
+
+def cut(m, keep):
+    """The message with only the nodes `keep` selects (or repeats)."""
+    m.nodes = replace(m.nodes, node_ids=m.nodes.node_ids[keep], centers=m.nodes.centers[keep],
+                      descriptor=m.nodes.descriptor[keep])
+    m.extents = m.extents[keep]
+
+
+@pytest.mark.parametrize("corrupt,counter", [
+    (lambda m: setattr(m, "nodes", replace(m.nodes, descriptor=m.nodes.descriptor[:, :-3])), "bad_feature_size"),
+    (lambda m: m.nodes.centers.__setitem__((0, 1), np.nan), "invalid_values"),
+    (lambda m: cut(m, slice(0, 2)), "too_few_nodes"),
+    (lambda m: cut(m, np.repeat(np.arange(m.num_nodes), 200)), "oversized_message"),
+])
+def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, counter):
+    a, b, reg, logs = make_agents(model, graphs)
+    msg = b.coarse_message(1)
+    msg.nodes = replace(msg.nodes, centers=msg.nodes.centers.copy())
+    corrupt(msg)
+    assert reg.on_coarse(msg, now=0.0) == (None, None)
+    assert reg.counters[counter] == 1
+    assert logs and "refused" in logs[0]
+
+
+def test_dense_points_naming_unknown_nodes_are_refused(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    dense = b.dense_message(1)
+    dense.point_node = dense.point_node + 1000
+    assert reg.on_dense(dense, now=0.0) is None
+    assert reg.counters["bad_points"] == 1
+
+
+def test_silent_peer_retries_with_backoff_then_gives_up(model, graphs):
+    cfg = PeersConfig(request_timeout_s=1.0, retry_backoff=2.0, max_retries=2, min_request_interval_s=5.0)
+    a, b, reg, logs = make_agents(model, graphs, cfg)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert req is not None
+    assert reg.on_tick(0.9) == []
+    retry1 = reg.on_tick(1.0)
+    assert len(retry1) == 1 and retry1[0].sequence != req.sequence
+    assert reg.on_tick(2.9) == []            # second wait is 2 s
+    retry2 = reg.on_tick(3.0)
+    assert len(retry2) == 1
+    assert reg.on_tick(6.9) == []            # third wait is 4 s
+    assert reg.on_tick(7.0) == []            # gives up instead of a third retry
+    assert reg.counters["request_gave_up"] == 1 and reg.counters["request_retry"] == 2
+    assert any("giving up" in line for line in logs)
+    # a new request only after the minimum interval since giving up
+    assert reg.on_coarse(b.coarse_message(2), now=8.0)[1] is None
+    assert reg.on_coarse(b.coarse_message(3), now=12.5)[1] is not None
+
+
+def test_no_estimate_before_own_map(model, graphs):
+    _, b, _, _ = make_agents(model, graphs)
+    a = AgentCore(AgentConfig(name="a"), model)
+    reg = Peers(PeersConfig(), a, model, log=lambda s: None)
+    assert reg.on_coarse(b.coarse_message(1), now=0.0) == (None, None)
+    assert reg.counters["own_map_not_ready"] == 1
+
+
+def test_own_messages_are_ignored(model, graphs):
+    a, _, reg, _ = make_agents(model, graphs)
+    assert reg.on_coarse(a.coarse_message(1), now=0.0) == (None, None)
+    assert not reg.links
+
+
+def test_own_reference_cloud_is_built_once_per_map(model, graphs):
+    a, _, reg, _ = make_agents(model, graphs)
+    pose = reg.cfg.pipeline.pose
+    first = a.reference_cloud(pose)
+    assert first.valid and a.reference_cloud(pose) is first
+    a.set_graph(graphs[0], 2, 1.0)   # a new map: a new reference
+    assert a.reference_cloud(pose) is not first
+
+
+def test_one_map_intake_for_both_nodes_counts_every_refusal(model):
+    scene = generate_scene(1, SynthConfig(rooms=1))
+    agent = AgentCore(AgentConfig(name="a"), model)
+    peers = Peers(PeersConfig(), agent, model, log=lambda s: None)
+    assert peers.counters is agent.counters                  # one table per node
+    assert peers.take_own_map(scene, 1, 0.0) is None and agent.ready
+    reference = agent._reference                             # built with the map, not per estimate
+    assert reference is not None and agent.reference_cloud(peers.cfg.pipeline.pose) is reference[1]
+    assert "twice" in peers.take_own_map(scene, 1, 1.0)
+    empty = InstanceMap(points=np.zeros((0, 3), np.float32), instance=np.zeros(0, np.int32), labels={})
+    assert "refused" in agent.take_map(empty, 2, 2.0)
+    assert agent.counters["duplicate_map"] == 1 and agent.counters["bad_instance_map"] == 1
+    assert agent.map_sequence == 1                           # the refused map changed nothing

@@ -1,0 +1,51 @@
+"""One source for each parameter: the nodes declare their parameters from the config dataclasses,
+config/sgreg.yaml is written from those declarations, and every value it sets is one the nodes
+accept."""
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sgreg_cli.commands.params import parameter_file
+from sgreg_core.config import node_params
+from sgreg_core.runtime.peers import PeersConfig
+from sgreg_ros.agent_node import PARAMS as AGENT
+from sgreg_ros.params import Param, ParameterError, check
+from sgreg_ros.registration_node import PARAMS as REGISTRATION
+
+YAML = Path(__file__).resolve().parents[2] / "config" / "sgreg.yaml"
+
+
+def test_the_parameter_file_names_only_real_parameters_with_valid_values():
+    declared = {p.name: p for p in AGENT + REGISTRATION}
+    values = yaml.safe_load(YAML.read_text())["/**"]["ros__parameters"]
+    unknown = sorted(set(values) - set(declared))
+    assert not unknown, f"config/sgreg.yaml sets parameters no node declares: {unknown}"
+    for name, value in values.items():
+        check(declared[name], value)          # raises with a clear line when invalid
+
+
+def test_the_parameter_file_is_written_from_the_declarations():
+    assert YAML.read_text() == parameter_file(), \
+        "config/sgreg.yaml is stale: run `sgreg params --out config/sgreg.yaml`"
+    values = yaml.safe_load(parameter_file())["/**"]["ros__parameters"]
+    assert values == {p.name: p.default for p in AGENT + REGISTRATION}
+
+
+def test_declarations_come_from_the_dataclasses():
+    by_name = {p.name: p for p in REGISTRATION}
+    for name, (default, help_text, low, high, _) in node_params(PeersConfig).items():
+        p = by_name[name]
+        assert (p.default, p.description, p.low, p.high) == (default, help_text, low, high)
+    assert {"coarse_rate_hz", "feature_encoding"} <= {p.name for p in AGENT}
+    assert "dense_min_interval_s" not in by_name          # the registration node answers no requests
+
+
+@pytest.mark.parametrize("param,value", [
+    (Param("x", 1.0, "", 0.0, 2.0), 3.0),
+    (Param("x", 1, "", 0, 10), "5"),
+    (Param("x", "float16", "", choices=("float16", "int8")), "bogus"),
+])
+def test_bad_values_are_refused_with_the_reason(param, value):
+    with pytest.raises(ParameterError, match="'x'"):
+        check(param, value)
