@@ -8,8 +8,10 @@ chosen on rooms seen in training and on synthetic scenes only.
 
 For dense and coarse/merged estimates separately it prints how right and wrong estimates spread
 over each piece of evidence, then, over a grid of thresholds, how many wrong estimates each
-setting would still accept and how many right ones it would refuse. Last it fits the logistic
-confidence (pose/verdict.py `confidence`) on every estimate and prints its weights.
+setting would still accept and how many right ones it would refuse, the shipped setting first
+(the grid's minimum confidence applies the confidence the replay recorded, i.e. the shipped
+weights). Last it fits the logistic confidence (pose/verdict.py `confidence`) on every estimate
+and prints its weights.
 
     python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--held-out scene0005]
 """
@@ -21,6 +23,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from sgreg_core.pose.verdict import VerdictConfig
 
 FEATURES = ("objects", "inliers", "spread", "fitness", "footprint_share", "ambiguity", "inlier_ratio")
 
@@ -38,6 +42,7 @@ def load_frames(dirs: list[str], held_out: list[str]) -> list[dict]:
                     continue
                 frames.append({**{k: float(ev.get(k) if ev.get(k) is not None else np.nan)
                                   for k in FEATURES},
+                               "confidence": float(f.get("confidence", np.nan)),
                                "mode": f["mode"], "correct": bool(f["correct"]), "bag": path.stem})
     return frames
 
@@ -53,21 +58,28 @@ def describe(frames: list[dict]) -> None:
         print(f"  {k:16s} right p5..p95 {q(a)}   wrong p5..p95 {q(b)}")
 
 
-def grid(frames: list[dict], min_inliers: int) -> None:
+def grid(frames: list[dict], min_inliers: int, shipped: tuple) -> None:
     ok = np.array([f["correct"] for f in frames])
-    x = {k: np.nan_to_num(np.array([f[k] for f in frames]), nan=0.0) for k in FEATURES}
+    x = {k: np.nan_to_num(np.array([f[k] for f in frames]), nan=0.0)
+         for k in FEATURES + ("confidence",)}
+
+    def accepted(objects, fit, share, amb, spread, conf):
+        return ((x["inliers"] >= min_inliers) & (x["objects"] >= objects) & (x["fitness"] >= fit)
+                & (x["footprint_share"] >= share) & (x["ambiguity"] < amb) & (x["spread"] >= spread)
+                & (x["confidence"] >= conf))
+
     rows = []
-    for objects, fit, share, amb, spread in itertools.product(
-            (2, 3, 4, 5), (0.5, 0.55, 0.6, 0.65, 0.7), (0.1, 0.2, 0.3), (0.5, 0.6, 0.7, 0.8, 1.0),
-            (0.1, 0.2, 0.3)):
-        acc = ((x["inliers"] >= min_inliers) & (x["objects"] >= objects) & (x["fitness"] >= fit)
-               & (x["footprint_share"] >= share) & (x["ambiguity"] < amb) & (x["spread"] >= spread))
-        rows.append((int((acc & ~ok).sum()), -int((acc & ok).sum()), objects, fit, share, amb, spread))
+    for t in itertools.product((2, 3, 4, 5), (0.5, 0.55, 0.6, 0.65, 0.7), (0.1, 0.2, 0.3),
+                               (0.5, 0.6, 0.7, 0.8, 1.0), (0.1, 0.2, 0.3), (0.0, 0.5, 0.8, 0.9, 0.95)):
+        acc = accepted(*t)
+        rows.append((int((acc & ~ok).sum()), -int((acc & ok).sum()), *t))
     rows.sort()
-    print(f"  {'wrong accepted':>14} {'right accepted':>14}  objects fitness share ambiguity< spread")
-    for wrong, right, *t in rows[:12]:
+    head = "objects fitness share ambiguity< spread confidence"
+    print(f"  {'wrong accepted':>14} {'right accepted':>14}  {head}   (of {int(ok.sum())} right)")
+    acc = accepted(*shipped)
+    for wrong, right, *t in [(int((acc & ~ok).sum()), -int((acc & ok).sum()), *shipped)] + rows[:12]:
         print(f"  {wrong:14d} {-right:14d}  {t[0]:7d} {t[1]:7.2f} {t[2]:5.2f} {t[3]:10.2f} {t[4]:6.2f}"
-              f"   (of {int(ok.sum())} right)")
+              f" {t[5]:10.2f}{'   <- shipped' if tuple(t) == tuple(shipped) else ''}")
 
 
 def design(frames: list[dict]) -> np.ndarray:
@@ -99,11 +111,14 @@ def main() -> None:
     frames = load_frames(args.dirs, args.held_out)
     print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
           f"(held-out rooms {args.held_out} left out)")
-    for name, modes, min_inliers in (("dense", ("dense",), 8), ("coarse and merged", ("coarse", "merged"), 4)):
+    v = VerdictConfig()
+    for name, modes, min_inliers, objects in (("dense", ("dense",), v.min_inliers, v.min_objects),
+                                              ("coarse and merged", ("coarse", "merged"), 4, 4)):
         sel = [f for f in frames if f["mode"] in modes]
         print(f"\n{name}:")
         describe(sel)
-        grid(sel, min_inliers)
+        grid(sel, min_inliers, (objects, v.min_fitness, v.min_footprint_share, v.max_ambiguity,
+                                v.min_spread, v.min_confidence))
     X, y = design(frames), np.array([f["correct"] for f in frames], float)
     w = fit_logistic(X, y)
     p_hat = 1 / (1 + np.exp(-X @ w))
@@ -112,7 +127,7 @@ def main() -> None:
     ece = sum(abs(p_hat[idx == b].mean() - y[idx == b].mean()) * (idx == b).sum()
               for b in range(10) if (idx == b).any()) / len(y)
     print(f"\nconfidence weights (bias, log1p objects, fitness, footprint share, ambiguity, "
-          f"inlier ratio): ({', '.join(f'{v:.3f}' for v in w)})  training ECE {ece:.3f}")
+          f"inlier ratio): ({', '.join(f'{c:.3f}' for c in w)})  training ECE {ece:.3f}")
 
 
 if __name__ == "__main__":

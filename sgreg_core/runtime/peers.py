@@ -13,7 +13,8 @@ An estimate that passes the verdict is not yet published as verified. The link t
 - none -> candidate: a first estimate that passes the verdict;
 - candidate -> confirmed: a second one, made from other data (a map of either agent with other
   content, or the other kind of correspondences: points of a dense answer against node centers
-  of a coarse graph) and agreeing with the candidate (within agree_m / agree_deg); the transform is
+  of a coarse graph), at least one of the two dense (confirm_with_dense), and agreeing with the
+  candidate (within agree_m / agree_deg); the transform is
   published from then on, for every estimate that passes the verdict and agrees with the link;
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
@@ -63,6 +64,10 @@ class PeersConfig:
         paper's scheme).
     confirm: publish a link only once two estimates from different data agree (see the
         module docstring); False publishes every estimate that passes the verdict.
+    confirm_with_dense: one of the two agreeing estimates must be dense. Two coarse estimates
+        from successive graphs share most of their node matches, so they are not independent,
+        and node centers are the least accurate evidence (on the training rooms of the real
+        suite, verified coarse estimates lie twice as far from the truth as dense ones).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
         nodes they come from moved by more than this (median, in either map) since.
@@ -87,6 +92,8 @@ class PeersConfig:
     keep_correspondences: bool = param(True, "merge the last dense correspondences into coarse "
                                        "estimates")
     confirm: bool = param(True, "publish a link only once two estimates from different data agree")
+    confirm_with_dense: bool = param(True, "a first confirmation needs a dense estimate among the "
+                                     "two that agree")
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -401,16 +408,23 @@ class Peers:
             return "awaiting_confirmation"
         cand = link.candidate
         if cand is not None and self._agree(hyp.T, cand.T):
-            if cand.data != hyp.data:
+            if self._independent(cand, hyp):
                 link.confirmed, link.candidate = hyp, None
                 self._keep(link, hyp if hyp.kept is not None else cand)
                 self._count("confirmed")
                 return "ok"
-            if cand.kept is None:   # same data again: no confirmation, but keep dense inliers
+            if cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
             return "awaiting_confirmation"
         link.candidate = hyp
         return "awaiting_confirmation"
+
+    def _independent(self, a: Hypothesis, b: Hypothesis) -> bool:
+        """Whether two agreeing estimates may confirm a link: made from different data and,
+        with confirm_with_dense, at least one of them from a dense answer."""
+        if a.data == b.data:
+            return False
+        return not self.cfg.confirm_with_dense or "dense" in (a.data[2], b.data[2])
 
     def _keep(self, link: PeerLink, hyp: Hypothesis) -> None:
         if hyp.kept is not None and len(hyp.kept.corr):

@@ -10,7 +10,7 @@ from sgreg_core.metrics import rre, rte
 from sgreg_core.net.model import load_model
 from sgreg_core.net.testing import moved_graph, toy_graph
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
-from sgreg_core.runtime.peers import Peers, PeersConfig
+from sgreg_core.runtime.peers import Hypothesis, Peers, PeersConfig
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
 
@@ -78,6 +78,20 @@ def test_the_same_data_twice_does_not_confirm(model, graphs):
     b.set_graph(moved, 3, 4.0)
     est = reg.on_dense(b.dense_message(4, req.node_ids, "a", req.sequence), now=4.0)
     assert est.verified, est.reason
+
+
+def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
+    """Successive coarse graphs share most node matches: one of the two must be dense."""
+    T = np.eye(4)
+    coarse1 = Hypothesis(T, ("a1", "b1", "coarse"), "coarse")
+    coarse2 = Hypothesis(T, ("a1", "b2", "coarse"), "coarse")
+    dense = Hypothesis(T, ("a1", "b2", "dense"), "dense")
+    reg = make_agents(model, graphs)[2]
+    assert not reg._independent(coarse1, coarse2)
+    assert reg._independent(coarse1, dense) and reg._independent(dense, coarse1)
+    assert not reg._independent(dense, Hypothesis(T, dense.data, "dense"))
+    lenient = make_agents(model, graphs, PeersConfig(confirm_with_dense=False))[2]
+    assert lenient._independent(coarse1, coarse2)
 
 
 def confirmed_link(model, graphs, cfg=None):
