@@ -1,1 +1,2 @@
-"""Subcommands of the sgreg CLI, one module each (see sgreg_core/cli.py)."""
+"""Subcommands of the sgreg CLI, one module each (NAME, HELP, add_arguments, run); sgreg_cli/main.py
+builds the command table from them."""
