@@ -1,6 +1,6 @@
 """`sgreg replay`: start every agent's nodes as separate processes, play a two-agent bag into
 them, collect every published estimate, the traffic between agents, and the nodes' CPU and
-memory. Scoring is sgreg_core.replay_score."""
+memory. Scoring is sgreg_core.bench.replay_score."""
 from __future__ import annotations
 
 import json

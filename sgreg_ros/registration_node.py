@@ -4,7 +4,7 @@ Builds its own graph from mapping/instances, listens to the coarse and dense gra
 (the `peers` parameter, or every /<x>/sgreg/coarse it discovers), asks them for dense data, and
 publishes every estimate T_<agent>^<peer> on sgreg/registration and the verified ones on
 sgreg/transform. All decisions live in sgreg_core.runtime.peers.Peers; its parameters are
-declared from the configs (PeersConfig, AgentConfig, GraphConfig, the verdict's min_fitness and
+declared from the configs (PeersConfig, AgentConfig, GraphConfig, the verdict's min_fitness and min_confidence, and
 RegistrationNodeConfig below)."""
 from __future__ import annotations
 

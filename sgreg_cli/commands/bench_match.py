@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--names", nargs="*", default=[], help="a name per weights file")
     parser.add_argument("--pairs", type=int, default=40, help="pairs per condition")
     parser.add_argument("--seed", type=int, default=1234)
-    parser.add_argument("--scans-dir", default=SCANS,
+    parser.add_argument("--scans", "--scans-dir", dest="scans_dir", default=SCANS,
                         help="real scans (default: ../shared/data/scans next to the repository)")
     parser.add_argument("--scan-prefix", default="scannet-picwoon_", help="scan directory prefix")
     parser.add_argument("--rescan-gt", default=RESCAN_GT, help="pseudo ground truth between captures")

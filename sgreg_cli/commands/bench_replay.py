@@ -8,8 +8,9 @@ weights, parameters and source code is not replayed again (--fresh replays every
 interrupted run resumes where it stopped.
 
 Backends: "ros" (default) starts real nodes as separate processes over DDS, as `sgreg replay`;
-"offline" runs the same cores in one process on a virtual clock (sgreg_core/offline_replay.py):
-deterministic and fast, for choosing thresholds; reported figures come from "ros".
+"offline" runs the same cores in one process on a virtual clock (sgreg_core/bench/offline_replay.py):
+deterministic and fast, for choosing thresholds and covering every bag; "ros" measures the nodes
+themselves (latency, bandwidth).
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ HELP = "make and replay a suite of two-agent bags; success, wrong verified, time
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("suite", help="suite file (YAML), e.g. sgreg_core/bench/suites/real.yaml")
+    p.add_argument("suite", help="suite file (YAML), e.g. config/suites/real.yaml")
     p.add_argument("--out", help="output directory (default results/bench_replay_<suite>[_offline])")
     p.add_argument("--backend", choices=["ros", "offline"], default="ros")
     p.add_argument("--only", nargs="+", metavar="TEXT", help="only bags whose name contains one of these")

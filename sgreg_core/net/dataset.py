@@ -6,7 +6,7 @@ epoch, run or resume reads it back in milliseconds:
   * "rescan": a view of one capture of a room against a view of another capture of the same
               room, with the pseudo ground truth of rescan_gt.json (furniture moved, other
               coverage: the most realistic pairs we have);
-  * "synth":  two views of a synthetic apartment or office (sgreg_core.synth).
+  * "synth":  two views of a synthetic apartment or office (sgreg_core.simulation.synth).
 Real scans of the validation room never enter training. Ground-truth node pairs come from the
 voxel-occupancy IoU of the node clouds in the common frame (pairs.node_iou).
 

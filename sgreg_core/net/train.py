@@ -197,7 +197,7 @@ def _trained_on(cfg: TrainConfig) -> str:
     d = cfg.data
     return (f"pairs cut from ScanNet v2 scans in {d.scans_dir} ({d.scan_prefix}*, rescans with "
             f"pseudo ground truth) except room {d.val_room} (validation), mixed with synthetic "
-            f"scenes of sgreg_core.synth; mix {d.mix}")
+            f"scenes of sgreg_core.simulation.synth; mix {d.mix}")
 
 
 def plot_history(history: dict, path: Path) -> None:

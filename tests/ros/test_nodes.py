@@ -1,5 +1,5 @@
 """Real agent and registration nodes, as separate processes over DDS on loopback (a domain of
-this run's own): two agents register, three register pairwise, and every failure case of
+this run's own): two agents register and every failure case of
 docs/ARCHITECTURE.md ("Failure behaviour") is counted while the nodes carry on."""
 import copy
 import os
