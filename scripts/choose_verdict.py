@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgreg_core.pose.verdict import VerdictConfig
+from sgreg_core.pipeline import PipelineConfig
 
 FEATURES = ("objects", "inliers", "spread", "fitness", "footprint_share", "ambiguity", "inlier_ratio")
 
@@ -111,14 +111,14 @@ def main() -> None:
     frames = load_frames(args.dirs, args.held_out)
     print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
           f"(held-out rooms {args.held_out} left out)")
-    v = VerdictConfig()
-    for name, modes, min_inliers, objects in (("dense", ("dense",), v.min_inliers, v.min_objects),
-                                              ("coarse and merged", ("coarse", "merged"), 4, 4)):
+    shipped = PipelineConfig()
+    for name, modes, v in (("dense", ("dense",), shipped.pose.verdict),
+                           ("coarse and merged", ("coarse", "merged"), shipped.coarse_pose.verdict)):
         sel = [f for f in frames if f["mode"] in modes]
         print(f"\n{name}:")
         describe(sel)
-        grid(sel, min_inliers, (objects, v.min_fitness, v.min_footprint_share, v.max_ambiguity,
-                                v.min_spread, v.min_confidence))
+        grid(sel, v.min_inliers, (v.min_objects, v.min_fitness, v.min_footprint_share,
+                                  v.max_ambiguity, v.min_spread, v.min_confidence))
     X, y = design(frames), np.array([f["correct"] for f in frames], float)
     w = fit_logistic(X, y)
     p_hat = 1 / (1 + np.exp(-X @ w))
