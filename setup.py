@@ -14,12 +14,14 @@ setup(
     python_requires=">=3.11",
     packages=find_packages(include=["sgreg_core", "sgreg_core.*", "sgreg_ros", "sgreg_ros.*",
                                     "sgreg_cli", "sgreg_cli.*"]),
-    package_data={"sgreg_core": ["weights/*.safetensors", "weights/*.json"]},
+    package_data={"sgreg_core": ["weights/*.safetensors", "weights/*.json", "weights/*.npz"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        # `ros2 run sgreg_ros agent`: the short names live only here, not on PATH
+        (f"lib/{PACKAGE}", glob("executables/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -27,8 +29,8 @@ setup(
     entry_points={
         "console_scripts": [
             "sgreg = sgreg_cli.main:main",
-            "agent = sgreg_ros.agent_node:main",
-            "registration = sgreg_ros.registration_node:main",
+            "sgreg-agent = sgreg_ros.main:agent",
+            "sgreg-registration = sgreg_ros.main:registration",
         ],
     },
 )

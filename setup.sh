@@ -98,7 +98,7 @@ cp "$ROOT"/launch/*.py "$VENV/share/sgreg_ros/launch/"
 for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))"); do
   cat > "$VENV/lib/sgreg_ros/$exe" <<SH
 #!/bin/sh
-exec "$VENV/bin/$exe" "\$@"
+exec "$VENV/bin/sgreg-$exe" "\$@"
 SH
   chmod +x "$VENV/lib/sgreg_ros/$exe"
 done

@@ -18,7 +18,7 @@ def _nodes(context):
     params = LaunchConfiguration("params_file").perform(context)
     weights = LaunchConfiguration("weights_path").perform(context)
     overrides = {"weights_path": weights} if weights else {}
-    return [Node(package="sgreg_ros", executable=exe, namespace=agent, name=f"sgreg_{exe}",
+    return [Node(package="sgreg_ros", executable=exe, namespace=agent, name=exe,
                  parameters=[params, overrides], output="screen", emulate_tty=True)
             for agent in agents for exe in ("agent", "registration")]
 

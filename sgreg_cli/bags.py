@@ -68,14 +68,17 @@ class PlayReport:
 
 def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
              log=print, should_stop=lambda: False, delay: float = 1.0,
-             wait_subscribers: float = 0.0, flush_timeout: float = 2.0) -> PlayReport:
+             wait_subscribers: float = 0.0, flush_timeout: float = 2.0,
+             clock_hz: float = 0.0) -> PlayReport:
     """Publish a bag's messages with their recorded timing (scaled by 1/rate) from `node`.
 
     `delay` seconds pass between creating the publishers and the first message, so that
     subscribers (a recorder discovers topics only once they exist) can match them; with
     `wait_subscribers` > 0, play first waits up to that long until every topic has a subscriber.
     At the end it waits up to `flush_timeout` seconds until reliable subscribers acknowledged
-    everything.
+    everything. With clock_hz > 0 it also publishes the bag's time on /clock at that rate (from
+    the bag's start, during the delay too), as `ros2 bag play --clock` does, so that nodes run
+    with use_sim_time follow the bag.
     Each message is checked by deserialising it first; one that does not decode is reported
     and skipped, and the rest of the bag plays on."""
     if rate <= 0:
@@ -89,10 +92,11 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
         for c in conns:
             if c.topic not in pubs:
                 pubs[c.topic] = node.create_publisher(classes[c.id], c.topic, qos_for(c.topic))
+        clock = _BagClock(node, reader.start_time, rate, clock_hz)
         deadline = time.monotonic() + wait_subscribers
         while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
             time.sleep(0.05)
-        time.sleep(delay)
+        clock.sleep_until(time.monotonic() + delay)
         t0_bag, t0_wall = None, time.monotonic()
         for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
             if should_stop():
@@ -100,9 +104,8 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
             if t0_bag is None:
                 t0_bag = t_ns
                 report.clock = (t0_wall, t_ns * 1e-9)
-            wait = t0_wall + (t_ns - t0_bag) * 1e-9 / rate - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+                clock.start(t0_wall, t_ns)
+            clock.sleep_until(t0_wall + (t_ns - t0_bag) * 1e-9 / rate)
             try:
                 deserialize_message(bytes(raw), classes[conn.id])
             except Exception as exc:
@@ -118,6 +121,34 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     finally:
         reader.close()
     return report
+
+
+class _BagClock:
+    """The bag's time on /clock (rosgraph_msgs/Clock) while play waits, at clock_hz; idle at 0."""
+
+    def __init__(self, node, start_ns: int, rate: float, clock_hz: float):
+        self.period = 1.0 / clock_hz if clock_hz > 0 else None
+        self.pub = None
+        if self.period:
+            from rosgraph_msgs.msg import Clock
+
+            self.msg = Clock()
+            self.pub = node.create_publisher(Clock, "/clock", 10)
+        self.rate, self.wall0, self.bag0 = rate, None, start_ns
+
+    def start(self, wall0: float, bag0_ns: int) -> None:
+        self.wall0, self.bag0 = wall0, bag0_ns
+
+    def sleep_until(self, wall: float) -> None:
+        while True:
+            now = time.monotonic()
+            if self.pub is not None:
+                t = self.bag0 + (0 if self.wall0 is None else int((now - self.wall0) * self.rate * 1e9))
+                self.msg.clock.sec, self.msg.clock.nanosec = divmod(t, 1_000_000_000)
+                self.pub.publish(self.msg)
+            if now >= wall:
+                return
+            time.sleep(min(wall - now, self.period or wall - now))
 
 
 class BagRecorder:

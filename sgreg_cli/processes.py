@@ -10,7 +10,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-EXECUTABLES = ("agent", "registration")
+from sgreg_ros import EXECUTABLES
+
 _REPO_PARAMS = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
 DEFAULT_PARAMS = _REPO_PARAMS if _REPO_PARAMS.exists() else None   # the repository's config/
 
@@ -25,9 +26,9 @@ class NodeProcess:
 
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,
                  overrides: dict | None = None) -> list[str]:
-    """The command line of one node: `python -m sgreg_ros.<exe>_node --ros-args -r __ns:=/<agent> ...`.
+    """The command line of one node: `python -m sgreg_ros <exe> --ros-args -r __ns:=/<agent> ...`.
     params_file None: no parameter file, only the nodes' defaults and `overrides`."""
-    cmd = [sys.executable, "-m", f"sgreg_ros.{executable}_node", "--ros-args", "-r", f"__ns:=/{agent}"]
+    cmd = [sys.executable, "-m", "sgreg_ros", executable, "--ros-args", "-r", f"__ns:=/{agent}"]
     if params_file:
         cmd += ["--params-file", str(params_file)]
     for key, value in (overrides or {}).items():

@@ -28,13 +28,15 @@ CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
 @dataclass
 class ReplayConfig:
     """rate: playback speed. tail_s: time to keep listening after the bag ends (a dense
-    exchange may still be in flight). ready_timeout_s: how long nodes may take to start.
+    exchange may still be in flight; the agents' traffic in the last tail_s - settle_s of it is
+    what a static map costs the link). ready_timeout_s: how long nodes may take to start.
     overrides: ROS parameters given to every node (e.g. weights_path).
     restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
         and start them again at once: a robot whose software crashes mid-mission."""
 
     rate: float = 1.0
-    tail_s: float = 6.0
+    tail_s: float = 18.0
+    settle_s: float = 6.0
     ready_timeout_s: float = 90.0
     params_file: str | None = None
     overrides: dict = field(default_factory=dict)
@@ -53,6 +55,7 @@ class ReplayRun:
     duration_s: float
     timeline: list   # (t, topic, bytes) of cross-agent traffic
     events: list     # (t, what) e.g. a restart
+    bag_end_s: float = 0.0   # when the last message was played (t of the timeline)
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -164,6 +167,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         thread.start()
         last_sample = 0.0
         end_at = None
+        bag_end = 0.0
         restart = cfg.restart
         while end_at is None or time.monotonic() < end_at:
             executor.spin_once(timeout_sec=0.05)
@@ -184,6 +188,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
                 last_sample = time.monotonic()
             if end_at is None and not thread.is_alive():
                 end_at = time.monotonic() + cfg.tail_s
+                bag_end = end_at - cfg.tail_s - t0
         duration = time.monotonic() - t0
     finally:
         sampler.sample()
@@ -203,7 +208,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
-                     timeline=timeline, events=events)
+                     timeline=timeline, events=events, bag_end_s=bag_end)
 
 
 def ground_truth_of(bag: str | Path) -> dict:

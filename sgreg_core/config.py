@@ -4,8 +4,8 @@ the ROS nodes declare as parameters (sgreg_ros/params.py) with the default, desc
 valid range written here once.
 
 Public API:
-    param(default, help, low=None, high=None, choices=(), factory=None) -> dataclasses.Field
-    node_params(cls) -> {field name: (default, help, low, high, choices)}
+    param(default, help, low=None, high=None, choices=(), factory=None, live=False) -> dataclasses.Field
+    node_params(cls) -> {field name: (default, help, low, high, choices, live)}
     from_dict(cls, data) / to_dict(cfg) / apply_overrides(data, ["a.b=1", ...])
 """
 from __future__ import annotations
@@ -19,17 +19,19 @@ PARAM = "node_param"   # the field metadata key
 
 def param(default=dataclasses.MISSING, help: str = "", low: float | None = None,
           high: float | None = None, choices: tuple = (),
-          factory: Callable | None = None) -> dataclasses.Field:
+          factory: Callable | None = None, live: bool = False) -> dataclasses.Field:
     """A dataclass field that the nodes also expose as a ROS parameter of the same name: its
-    default, a one-line description, and its valid range (numbers) or choices (strings)."""
-    meta = {PARAM: (help, low, high, tuple(choices))}
+    default, a one-line description, and its valid range (numbers) or choices (strings).
+    live: the component reads the field at each use, so a node may change it at run time
+    (`ros2 param set`); every other parameter is read-only once the node runs."""
+    meta = {PARAM: (help, low, high, tuple(choices), live)}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
 
 
 def node_params(cls) -> dict[str, tuple]:
-    """{name: (default, help, low, high, choices)} of the `param` fields of dataclass `cls`."""
+    """{name: (default, help, low, high, choices, live)} of the `param` fields of dataclass `cls`."""
     out = {}
     for f in dataclasses.fields(cls):
         if PARAM in f.metadata:

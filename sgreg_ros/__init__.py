@@ -1,4 +1,4 @@
 """sgreg_ros: thin rclpy nodes over sgreg_core (parameters in, messages <-> core types, timers, QoS)."""
 
-# Executables under lib/sgreg_ros (`ros2 run sgreg_ros <name>`); setup.py's console_scripts match.
+# `ros2 run sgreg_ros <name>` (lib/sgreg_ros/<name>); on PATH they are `sgreg-<name>` (setup.py)
 EXECUTABLES = ("agent", "registration")

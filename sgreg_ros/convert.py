@@ -228,11 +228,13 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     return msg
 
 
-def diagnostics_msg(name: str, agent_id: str, counters: dict, stamp: float, summary: str) -> DiagnosticArray:
-    """One DiagnosticStatus with every counter as a key/value: standard ROS tools display it."""
+def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,
+                    stamp: float) -> DiagnosticArray:
+    """One DiagnosticStatus per node (name: the node's full name, hardware_id: the agent id), with
+    every counter as a key/value: rqt_robot_monitor and Foxglove display it."""
     arr = DiagnosticArray()
     arr.header.stamp = sec_to_stamp(stamp)
-    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=agent_id)
+    status = DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=agent_id)
     status.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counters.items())]
     arr.status = [status]
     return arr

@@ -1,7 +1,12 @@
 """Typed ROS parameters declared from the configs' dataclasses: each `param` field
 (sgreg_core/config.py) becomes a parameter of the same name, with its default, description
 and range written once, beside the setting itself. Values are checked at start, and a bad value
-stops the node with one clear line instead of a traceback."""
+stops the node with one clear line instead of a traceback.
+
+At run time (`ros2 param set`) a `live` parameter is checked the same way and, when valid,
+handed to the node, which applies it at once; an invalid value is rejected with the reason.
+Every other parameter is declared read-only, so setting it is refused instead of silently
+changing nothing."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,6 +28,7 @@ class Param:
     low: float | None = None
     high: float | None = None
     choices: tuple = ()
+    live: bool = False
 
 
 def params_of(*configs, skip: tuple[str, ...] = ()) -> list[Param]:
@@ -63,6 +69,7 @@ def declare_and_read(node, table: list[Param]) -> dict:
             desc.integer_range = [IntegerRange(from_value=int(p.low), to_value=int(p.high), step=1)]
         if p.choices:
             desc.additional_constraints = f"one of {', '.join(map(str, p.choices))}"
+        desc.read_only = not p.live
         try:
             value = node.declare_parameter(p.name, p.default, desc).value
         except Exception as exc:  # rclpy raises several types for out-of-range / wrong-type values
@@ -71,10 +78,44 @@ def declare_and_read(node, table: list[Param]) -> dict:
     return values
 
 
+def accept_live_changes(node, table: list[Param], apply) -> None:
+    """Check parameters set at run time against `table` and hand the valid ones to
+    apply({name: value}); an invalid value is refused with its reason (rclpy refuses read-only
+    ones before this runs). Register after declare_and_read: rclpy runs these callbacks for
+    declarations too."""
+    from rcl_interfaces.msg import SetParametersResult
+
+    by_name = {p.name: p for p in table}
+
+    def on_set(params) -> SetParametersResult:
+        changes = {}
+        for item in params:
+            p = by_name.get(item.name)
+            if p is None:   # use_sim_time and the other parameters rclpy owns
+                continue
+            if not p.live:
+                return SetParametersResult(successful=False, reason=f"'{p.name}' is read-only at run time")
+            try:
+                changes[p.name] = check(p, item.value)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        if changes:
+            apply(changes)
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+
+
 def agent_name_from(node, configured: str) -> str:
-    """The agent id: the 'agent_name' parameter, else the node's namespace ('/a' -> 'a')."""
-    name = configured or node.get_namespace().strip("/")
+    """The agent id, which is also the prefix of every topic of the node (/<id>/sgreg/...):
+    the 'agent_name' parameter, else the node's namespace ('/a' -> 'a'). Both may be given only
+    when they agree: topics in one namespace named for another agent would reach no peer."""
+    namespace = node.get_namespace().strip("/")
+    name = configured or namespace
     if not name or "/" in name:
         raise ParameterError("set 'agent_name' or run the node in a one-level namespace "
                              "(--ros-args -r __ns:=/a)")
+    if configured and namespace and configured != namespace:
+        raise ParameterError(f"agent_name '{configured}' differs from the namespace '/{namespace}': "
+                             "give one of them (the topics are /<agent>/sgreg/...)")
     return name

@@ -10,6 +10,8 @@
 - sgreg/dense: reliable, depth 2, volatile. Large and only sent on request; never replayed to
   late joiners (that would resend megabytes nobody asked for).
 - sgreg/transform, sgreg/registration: reliable, depth 10, volatile.
+- /diagnostics: reliable, depth 10, volatile, like diagnostic_updater's, so that
+  rqt_robot_monitor, the diagnostic aggregator and Foxglove all match it.
 """
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -26,3 +28,4 @@ COARSE_SUB = _qos(4, transient=True)
 DENSE_REQUEST = _qos(10)
 DENSE = _qos(2)
 RESULTS = _qos(10)
+DIAGNOSTICS = _qos(10)

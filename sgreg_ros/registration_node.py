@@ -1,80 +1,91 @@
-"""The `registration` executable: one per robot, in the robot's namespace (e.g. /a).
+"""The `registration` node: one per robot, in the robot's namespace (e.g. /a).
 
 Builds its own graph from mapping/instances, listens to the coarse and dense graphs of its peers
 (the `peers` parameter, or every /<x>/sgreg/coarse it discovers), asks them for dense data, and
 publishes every estimate T_<agent>^<peer> on sgreg/registration and the verified ones on
-sgreg/transform. All decisions live in sgreg_core.runtime.peers.Peers; its parameters are
-declared from the configs (PeersConfig, AgentConfig, GraphConfig, the verdict's min_fitness and min_confidence, and
+sgreg/transform, stamped with the time of the newer of the two maps. All decisions live in
+sgreg_core.runtime.peers.Peers; its parameters are declared from the configs (PeersConfig,
+AgentConfig, GraphConfig, the verdict's min_fitness and min_confidence, HealthConfig and
 RegistrationNodeConfig below)."""
 from __future__ import annotations
 
 import re
-import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
-from rclpy.node import Node
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 
 from sgreg_core.config import param
 from sgreg_core.maps.scene_graph import GraphConfig
-from sgreg_core.net.model import load_model
 from sgreg_core.pose.verdict import VerdictConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.health import HealthConfig
 from sgreg_core.runtime.peers import Peers, PeersConfig
 
 from . import convert, qos
-from .params import agent_name_from, declare_and_read, params_of, pick
-from .runner import run_node
+from .node_base import SgregNode
+from .params import params_of, pick
 
 
 @dataclass
 class RegistrationNodeConfig:
     """What only the registration node decides: who it is, which model, whom it listens to."""
 
-    agent_name: str = param("", "agent id; empty: the node's namespace (/a -> a)")
+    agent_name: str = param("", "agent id and topic prefix (/<id>/sgreg/...); empty: the node's namespace")
     weights_path: str = param("", "model weights (.safetensors with its .json); empty: the shipped model")
     peers: list = param(help="peer agent ids; [''] or []: every agent whose /<id>/sgreg/coarse appears",
                         factory=lambda: [""])
-    discovery_period_s: float = param(2.0, "how often to look for new peers", 0.1, 60.0)
+    discovery_period_s: float = param(2.0, "how often to look for new peers", 0.1, 60.0, live=True)
 
 
-# the agent's own map is refused or kept as the agent node does; it answers no requests
+# the agent's own map is refused or kept as the agent node does; it answers no requests and
+# sends no coarse graphs
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
-                   skip=("dense_min_interval_s",))
+                   HealthConfig, skip=("dense_min_interval_s", "heartbeat_period_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
 
-class RegistrationNode(Node):
+class RegistrationNode(SgregNode):
     def __init__(self):
-        super().__init__("sgreg_registration")
-        p = declare_and_read(self, PARAMS)
-        self.name = agent_name_from(self, p["agent_name"])
-        model = load_model(p["weights_path"] or None)
-        agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
-        defaults = PeersConfig()
-        peers_cfg = PeersConfig(**pick(PeersConfig, p),
-                                pipeline=defaults.pipeline.with_verdict(**pick(VerdictConfig, p)))
-        self.agent = AgentCore(agent_cfg, model)
-        self.agent.warm_up()
-        self.peers = Peers(peers_cfg, self.agent, model, log=self.get_logger().warning)
+        super().__init__("registration", PARAMS)
+        p = self.p
+        model = self.load_model()
+        self.peers = None
         self.fixed_peers = [x for x in p["peers"] if x]
         self.result_seq = 0
         self.request_pubs: dict[str, object] = {}
-        self.transform_pub = self.create_publisher(TransformStamped, "sgreg/transform", qos.RESULTS)
-        self.result_pub = self.create_publisher(RegistrationResult, "sgreg/registration", qos.RESULTS)
-        self.create_subscription(InstanceMap, "mapping/instances", self.on_instances, qos.INSTANCES, raw=True)
-        for peer in self.fixed_peers:
-            self.add_peer(peer)
-        if not self.fixed_peers:
-            self.create_timer(p["discovery_period_s"], self.discover_peers)
-        self.diag_pub = self.create_publisher(DiagnosticArray, "sgreg/diagnostics", qos.RESULTS)
-        self.create_timer(0.2, self.on_tick)
-        self.create_timer(1.0, self.publish_diagnostics)
-        self.get_logger().info(f"registration for '{self.name}' up, peers: "
-                               f"{self.fixed_peers or 'discovered'}, weights {self.agent.weights_id}")
+        self.discovery_timer = None
+        if model is not None:
+            agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
+            peers_cfg = PeersConfig(**pick(PeersConfig, p),
+                                    pipeline=PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p)))
+            self.agent = AgentCore(agent_cfg, model)
+            self.agent.warm_up()
+            self.peers = Peers(peers_cfg, self.agent, model, log=self.get_logger().warning)
+            self.transform_pub = self.create_publisher(TransformStamped, self.topic("sgreg/transform"), qos.RESULTS)
+            self.result_pub = self.create_publisher(RegistrationResult, self.topic("sgreg/registration"),
+                                                    qos.RESULTS)
+            self.create_subscription(InstanceMap, self.topic("mapping/instances"), self.on_instances,
+                                     qos.INSTANCES, raw=True)
+            for peer in self.fixed_peers:
+                self.add_peer(peer)
+            if not self.fixed_peers:
+                self.discovery_timer = self.create_timer(p["discovery_period_s"], self.discover_peers)
+            self.create_timer(0.2, self.on_tick)
+            self.get_logger().info(f"registration for '{self.name}' up, peers: "
+                                   f"{self.fixed_peers or 'discovered'}, weights {self.agent.weights_id}")
+        self.accept_live_parameters()
+
+    def apply(self, changes: dict) -> None:
+        if self.peers is None:
+            return
+        if "discovery_period_s" in changes and self.discovery_timer is not None:
+            self.destroy_timer(self.discovery_timer)
+            self.discovery_timer = self.create_timer(changes["discovery_period_s"], self.discover_peers)
+        core = pick(PeersConfig, changes)
+        if core:
+            self.peers.cfg = replace(self.peers.cfg, **core)
 
     # ---- peers ---------------------------------------------------------------------------
     def discover_peers(self) -> None:
@@ -95,43 +106,31 @@ class RegistrationNode(Node):
     # ---- callbacks -----------------------------------------------------------------------
     def on_instances(self, raw: bytes) -> None:
         why = convert.take_instance_map(raw, self.peers.take_own_map, self.agent.refuse)
-        if why:
-            self.get_logger().warning(why)
+        self.map_taken(why)
+        if why is None:
+            self.guarded("the own map's estimates", lambda: self.publish_all(self.peers.on_own_map(time.monotonic())))
 
     def on_coarse(self, raw: bytes) -> None:
         graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse")
-        if graph is None:
-            return
-        try:
-            estimate, request = self.peers.on_coarse(graph, time.monotonic())
-        except Exception as exc:  # a bug must cost one estimate, not the node
-            return self.internal_error(f"coarse graph {graph.sequence} of {graph.agent_id}", exc)
-        if request is not None:
-            self.send_request(request)
-        self.publish(estimate)
+        if graph is not None:
+            self.guarded(f"coarse graph {graph.sequence} of {graph.agent_id}",
+                         lambda: self.publish_all([self.peers.on_coarse(graph, time.monotonic())]))
 
     def on_dense(self, raw: bytes) -> None:
         graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense")
-        if graph is None:
-            return
-        try:
-            estimate = self.peers.on_dense(graph, time.monotonic())
-        except Exception as exc:  # a bug must cost one estimate, not the node
-            return self.internal_error(f"dense graph {graph.sequence} of {graph.agent_id}", exc)
-        self.publish(estimate)
+        if graph is not None:
+            self.guarded(f"dense graph {graph.sequence} of {graph.agent_id}",
+                         lambda: self.publish(self.peers.on_dense(graph, time.monotonic())))
 
     def on_tick(self) -> None:
         for request in self.peers.on_tick(time.monotonic()):
             self.send_request(request)
 
-    def publish_diagnostics(self) -> None:
-        verified = {p: link.confirmed is not None for p, link in self.peers.links.items()}
-        summary = ", ".join(f"{p}: {'registered' if v else 'not registered'}" for p, v in verified.items()) or "no peers yet"
-        self.diag_pub.publish(convert.diagnostics_msg(f"sgreg registration {self.name}", self.name,
-                                                      dict(self.peers.counters), self.now(), summary))
-
-    def internal_error(self, what: str, exc: Exception) -> None:
-        self.get_logger().error(self.agent.refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
+    def guarded(self, what: str, work) -> None:
+        try:
+            work()
+        except Exception as exc:  # a bug must cost one estimate, not the node
+            self.get_logger().error(self.agent.refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
 
     # ---- helpers -------------------------------------------------------------------------
     def _decode(self, fn, raw: bytes, cls, what: str):
@@ -146,23 +145,30 @@ class RegistrationNode(Node):
         if pub is not None:
             pub.publish(convert.request_to_msg(request, self.now()))
 
-    def now(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+    def publish_all(self, outcomes) -> None:
+        for estimate, request in outcomes:
+            if request is not None:
+                self.send_request(request)
+            self.publish(estimate)
 
     def publish(self, estimate) -> None:
         if estimate is None:
             return
-        stamp = self.now()
         self.result_seq += 1
-        self.result_pub.publish(convert.result_to_msg(estimate, self.name, self.result_seq, stamp,
+        self.result_pub.publish(convert.result_to_msg(estimate, self.name, self.result_seq, estimate.stamp,
                                                       dict(self.peers.counters)))
         if estimate.verified:
-            self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, stamp))
+            self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, estimate.stamp))
 
+    # ---- diagnostics ---------------------------------------------------------------------
+    def counters(self) -> dict:
+        return dict(self.peers.counters) if self.peers else {}
 
-def main(args=None) -> int:
-    return run_node(RegistrationNode, args)
+    def refused(self) -> int:
+        return self.agent.refused if self.peers else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    def summary(self) -> str:
+        if self.peers is None:
+            return ""
+        return ", ".join(f"{p}: {'registered' if link.confirmed else 'not registered'}"
+                         for p, link in self.peers.links.items()) or "no peers yet"

@@ -1,31 +1,74 @@
-"""Start-up and shutdown shared by the executables: init, build the node, spin, and turn Ctrl-C,
-SIGTERM and bad parameters into a clean exit."""
+"""Start-up and shutdown shared by the executables.
+
+SIGINT and SIGTERM are taken over before anything heavy is imported, so that Ctrl-C at any
+moment (while torch loads, while the model loads, during a dense estimate) ends the node with
+exit code 0 and no traceback, within a second:
+- the first signal asks the spin loop to stop, and arms a watchdog that ends the process after
+  EXIT_GRACE_S if a long callback or start-up still holds it (the node has nothing to save);
+- later signals change nothing: a terminal sends SIGINT to every process of its group and
+  `ros2 launch` sends its own SIGINT (then SIGTERM) on top, which used to interrupt the
+  clean-up with a KeyboardInterrupt traceback.
+rclpy's own signal handlers are switched off; the node spins in short slices so the Python
+handler runs promptly."""
 from __future__ import annotations
 
+import os
+import signal
 import sys
+import threading
 
-import rclpy
-import torch
-from rclpy.executors import ExternalShutdownException
-
-from .params import ParameterError
+EXIT_GRACE_S = 0.7
+SPIN_SLICE_S = 0.1
 
 
-def run_node(factory, args=None) -> int:
+class StopRequest:
+    """Set by SIGINT / SIGTERM; the first one arms the watchdog."""
+
+    def __init__(self):
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        if self.requested:
+            return
+        self.requested = True
+        watchdog = threading.Timer(EXIT_GRACE_S, os._exit, (0,))
+        watchdog.daemon = True
+        watchdog.start()
+
+    def install(self) -> StopRequest:
+        signal.signal(signal.SIGINT, self)
+        signal.signal(signal.SIGTERM, self)
+        return self
+
+
+def run_node(load_node_class, args=None) -> int:
+    """load_node_class() imports the node's module (torch, the model) and returns its class."""
+    stop = StopRequest().install()
+    from .params import ParameterError
+
+    node_class = load_node_class()
+    import rclpy
+    import torch
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
     # One torch thread per node: the graphs are small, and each robot runs two nodes; several
     # threads per process only fight over the cores (measured several times slower under load).
     torch.set_num_threads(1)
-    rclpy.init(args=args)
+    if stop.requested:
+        return 0
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
-        node = factory()
-        rclpy.spin(node)
+        node = node_class()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.requested and rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_SLICE_S)
         return 0
     except ParameterError as exc:
         print(f"[sgreg] refusing to start: {exc}", file=sys.stderr, flush=True)
         return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
     finally:
         if node is not None:
             node.destroy_node()

@@ -107,7 +107,8 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
         return replay_report(job.path, score, None, {"backend": "offline"})
     from ..replay import ReplayConfig, run_replay
 
-    cfg = ReplayConfig(params_file=args.params_file,
+    # a short tail: a suite scores registration; `sgreg replay` measures the quiet link
+    cfg = ReplayConfig(params_file=args.params_file, tail_s=6.0,
                        overrides={"weights_path": args.weights} if args.weights else {},
                        log_dir=out_dir / "logs" / job.name)
     run_ = run_replay(job.path, cfg, log=lambda s: None)

@@ -16,6 +16,8 @@ HEADER = """\
 # namespace; the agent id comes from the namespace (--ros-args -r __ns:=/a).
 # Written by `sgreg params --out config/sgreg.yaml` from the config dataclasses, which hold every
 # default, description and range (docs/ARCHITECTURE.md, "Configuration"): change them there.
+# Parameters marked (live) take effect at once under `ros2 param set` (checked; an invalid value
+# is refused with the reason); all others are read-only once the node runs.
 /**:
   ros__parameters:
 """
@@ -43,7 +45,8 @@ def parameter_file() -> str:
         for p in params:
             bounds = f" [{p.low}, {p.high}]" if p.low is not None else ""
             choices = f" ({' | '.join(p.choices)})" if p.choices else ""
-            lines.append(f"    {p.name}: {_value(p.default)}    # {p.description}{bounds}{choices}")
+            live = " (live)" if p.live else ""
+            lines.append(f"    {p.name}: {_value(p.default)}    # {p.description}{bounds}{choices}{live}")
     return "\n".join(lines) + "\n"
 
 

@@ -1,4 +1,5 @@
-"""sgreg play BAG [--rate R]: publish a recorded bag with its original timing."""
+"""sgreg play BAG [--rate R] [--clock [HZ]]: publish a recorded bag with its original timing
+(and its time on /clock, for nodes run with use_sim_time)."""
 from __future__ import annotations
 
 import sys
@@ -15,6 +16,8 @@ def add_arguments(p):
                    help="seconds between advertising the topics and the first message")
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="first wait up to S seconds until every topic has a subscriber")
+    p.add_argument("--clock", type=float, nargs="?", const=40.0, default=0.0, metavar="HZ",
+                   help="publish the bag's time on /clock (default 40 Hz, as ros2 bag play)")
 
 
 def run(args) -> int:
@@ -27,7 +30,7 @@ def run(args) -> int:
     node = rclpy.create_node("sgreg_play")
     try:
         report = play_bag(node, args.bag, rate=args.rate, topics=args.topics, delay=args.delay,
-                          wait_subscribers=args.wait_subscribers,
+                          wait_subscribers=args.wait_subscribers, clock_hz=args.clock,
                           log=lambda s: print(f"sgreg play: {s}", file=sys.stderr, flush=True))
     except BagError as exc:
         print(f"sgreg play: {exc}", file=sys.stderr)

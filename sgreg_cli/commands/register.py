@@ -1,5 +1,8 @@
 """`sgreg register SRC_DIR REF_DIR [--json OUT] [--coarse] [--no-icp] [--png OUT] [--weights W]`:
 register two instance map directories with SG-Reg (sgreg_core.pipeline).
+`sgreg register --pairs FILE [--json OUT]`: many pairs (one "SRC_DIR REF_DIR" per line), the
+model loaded once; --json then writes a list of results, and a pair with bad input is an
+entry with an "error" instead of the end of the run.
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
@@ -17,8 +20,10 @@ HELP = "register two instance maps (prints T, writes JSON)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("src_dir", help="instance map directory of the source (SRC)")
-    parser.add_argument("ref_dir", help="instance map directory of the reference (REF)")
+    parser.add_argument("src_dir", nargs="?", help="instance map directory of the source (SRC)")
+    parser.add_argument("ref_dir", nargs="?", help="instance map directory of the reference (REF)")
+    parser.add_argument("--pairs", metavar="FILE",
+                        help="register every 'SRC_DIR REF_DIR' line of FILE (# comments), loading once")
     parser.add_argument("--json", dest="json_out", help="write the result here")
     parser.add_argument("--coarse", action="store_true",
                         help="node-center correspondences only (no point matching)")
@@ -36,24 +41,42 @@ def _fail(message: str) -> int:
     return 2
 
 
+def read_pairs(path: str) -> list[tuple[str, str]]:
+    """The 'SRC_DIR REF_DIR' lines of a pairs file; ValueError names a bad line."""
+    pairs = []
+    for number, line in enumerate(open(path, encoding="utf-8"), 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        if len(words) != 2:
+            raise ValueError(f"{path}:{number}: expected 'SRC_DIR REF_DIR', got {line.strip()!r}")
+        pairs.append((words[0], words[1]))
+    if not pairs:
+        raise ValueError(f"{path} lists no pair")
+    return pairs
+
+
 def run(args: argparse.Namespace) -> int:
     import json
     import time
     from pathlib import Path
 
-    import numpy as np
     import torch
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.net.model import load_model
-    from sgreg_core.pipeline import PipelineConfig, build_graphs, node_cloud, register_graphs, warm_up
+    from sgreg_core.pipeline import PipelineConfig, warm_up
 
-    torch.set_num_threads(max(1, args.threads))
+    one_pair = bool(args.src_dir and args.ref_dir)
+    if one_pair == bool(args.pairs) or (args.src_dir and not one_pair):
+        return _fail("give SRC_DIR REF_DIR, or --pairs FILE")
+    if args.pairs and args.png:
+        return _fail("--png draws one pair; leave it out with --pairs")
     try:
-        src_map = read_instance_map(args.src_dir)
-        ref_map = read_instance_map(args.ref_dir)
-    except InstanceMapError as exc:
+        pairs = read_pairs(args.pairs) if args.pairs else [(args.src_dir, args.ref_dir)]
+    except (OSError, ValueError) as exc:
         return _fail(str(exc))
+    torch.set_num_threads(max(1, args.threads))
     t0 = time.perf_counter()
     try:
         model = load_model(args.weights)
@@ -61,32 +84,61 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"cannot load weights: {' '.join(str(exc).split())}")
     warm_up(model)
     startup_ms = 1e3 * (time.perf_counter() - t0)
-
     cfg = PipelineConfig(mode="coarse" if args.coarse else "dense",
                          icp="never" if args.no_icp else "always")
+
+    results, codes = [], []
+    for src_dir, ref_dir in pairs:
+        try:
+            maps = read_instance_map(src_dir), read_instance_map(ref_dir)
+        except InstanceMapError as exc:
+            if not args.pairs:
+                return _fail(str(exc))
+            print(f"{src_dir} -> {ref_dir}: bad input: {exc}", file=sys.stderr)
+            results.append({"src": src_dir, "ref": ref_dir, "success": False, "error": str(exc)})
+            codes.append(2)
+            continue
+        result = _register_one(model, cfg, src_dir, ref_dir, *maps, startup_ms, args, single=not args.pairs)
+        results.append(result)
+        codes.append(0 if result["success"] else 1)
+    if args.pairs:
+        ok = sum(c == 0 for c in codes)
+        print(f"{ok} of {len(pairs)} pairs registered ({codes.count(2)} with bad input); model loaded "
+              f"once in {startup_ms:.0f} ms")
+    if args.json_out:
+        out = Path(args.json_out)
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(results if args.pairs else results[0], indent=1) + "\n")
+        except OSError as exc:
+            return _fail(f"cannot write {out}: {exc.strerror or exc}")
+    return max(codes)
+
+
+def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms, args, single) -> dict:
+    import numpy as np
+
+    from sgreg_core.pipeline import build_graphs, node_cloud, register_graphs
+
     timings: dict = {}
     src_graph, ref_graph = build_graphs(src_map, ref_map, cfg, timings)
     reg = register_graphs(model, src_graph, ref_graph, cfg, timings)
-
     result = {**reg.to_json(), "weights_id": model.weights_id, "icp": cfg.icp,
-              "src": str(args.src_dir), "ref": str(args.ref_dir),
+              "src": str(src_dir), "ref": str(ref_dir),
               "nodes": {"src": src_graph.num_nodes, "ref": ref_graph.num_nodes},
               "startup_ms": round(startup_ms, 1)}
+    verdict = "registered" if reg.success else f"NOT registered ({reg.reason})"
+    if not single:
+        print(f"{src_dir} -> {ref_dir}: {verdict}, {reg.inliers} inliers, confidence "
+              f"{reg.confidence:.2f}, {reg.timing_ms['total']:.0f} ms")
+        return result
     with np.printoptions(precision=6, suppress=True):
         print(f"T (SRC -> REF):\n{np.asarray(reg.T)}")
-    verdict = "registered" if reg.success else f"NOT registered ({reg.reason})"
     print(f"{verdict}: {reg.mode}, {reg.node_matches} node matches, {reg.correspondences} "
           f"correspondences, {reg.inliers} inliers over {reg.inlier_nodes} node matches, "
           f"fitness {reg.fitness:.3f} (on the reference footprint {reg.footprint_fitness:.3f}), "
           f"ambiguity {reg.evidence.ambiguity:.2f}, confidence {reg.confidence:.2f}, "
           f"{reg.timing_ms['total']:.0f} ms (+ {startup_ms:.0f} ms loading the model)")
-    if args.json_out:
-        out = Path(args.json_out)
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps(result, indent=1) + "\n")
-        except OSError as exc:
-            return _fail(f"cannot write {out}: {exc.strerror or exc}")
     if args.png:
         from sgreg_core.plots.registration import plot_registration
 
@@ -97,4 +149,4 @@ def run(args: argparse.Namespace) -> int:
                           src_graph.centers[si], ref_graph.centers[ri],
                           title=f"{verdict}: {reg.node_matches} node matches, "
                                 f"{reg.inliers} inliers")
-    return 0 if reg.success else 1
+    return result

@@ -61,7 +61,7 @@ def run(args) -> int:
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
-                                                   "overrides": cfg.overrides})
+                                                   "overrides": cfg.overrides}, settle_s=cfg.settle_s)
     kb_per_frame = report["kb_per_query_frame"]
     out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
 
@@ -79,7 +79,9 @@ def run(args) -> int:
         ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],
         ["coarse latency median / p90", _lat(score.coarse_latency_ms)],
         ["dense latency median / p90", _lat(score.dense_latency_ms)],
-    ] + [[f"node {k}", f"CPU {v['cpu_share']:.0%}, peak {v['peak_rss_mb']:.0f} MB"] for k, v in run_.processes.items()]
+    ] + [[f"link after the bag, agent {a}", f"{b / 1e3:.2f} kB/s (static maps, {report['after_bag']['window_s']:.0f} s)"]
+         for a, b in report["after_bag"]["bytes_per_s"].items()
+         ] + [[f"node {k}", f"CPU {v['cpu_share']:.0%}, peak {v['peak_rss_mb']:.0f} MB"] for k, v in run_.processes.items()]
     if run_.corrupted:
         rows.append(["corrupted bag messages skipped", str(len(run_.corrupted))])
     print(format_table(["replay", "value"], rows))

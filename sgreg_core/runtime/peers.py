@@ -49,7 +49,9 @@ from .messages import DenseRequestMessage, Estimate, GraphMessage
 class PeersConfig:
     """min_node_matches: node matches needed before asking a peer for dense data.
     min_request_interval_s: at most one dense request per peer per this interval once a link to
-        it is confirmed.
+        it is confirmed. A request goes out only when either map changed since the last
+        answered exchange: the same two graphs give the same dense estimate, so asking again
+        would only cost bandwidth (an unanswered request is asked again).
     search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
         first link, and confirm it, in seconds.
     request_timeout_s: an unanswered request is retried after this, then after
@@ -69,6 +71,9 @@ class PeersConfig:
         and node centers are the least accurate evidence (on the training rooms of the real
         suite, verified coarse estimates lie twice as far from the truth as dense ones).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
+    quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
+        (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
+        graph is older than this, the estimate is made against it instead of waiting.
     kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
         nodes they come from moved by more than this (median, in either map) since.
     pipeline: the one registration pipeline (pipeline.PipelineConfig): dense settings for
@@ -76,19 +81,19 @@ class PeersConfig:
         The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
         that land on the agent's footprint to lie on its surfaces (pose/verify.py)."""
 
-    min_node_matches: int = param(3, "node matches needed before a dense request", 1, 1000)
+    min_node_matches: int = param(3, "node matches needed before a dense request", 1, 1000, live=True)
     min_request_interval_s: float = param(5.0, "at most one dense request per peer per interval once "
-                                          "a link to it is confirmed", 0.0, 3600.0)
+                                          "a link to it is confirmed", 0.0, 3600.0, live=True)
     search_request_interval_s: float = param(2.0, "the request interval while no link to the peer "
-                                             "is confirmed", 0.0, 3600.0)
+                                             "is confirmed", 0.0, 3600.0, live=True)
     request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
-                                     0.1, 600.0)
-    retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0)
-    max_retries: int = param(3, "retries before giving up until the next interval", 0, 100)
-    min_coarse_matches: int = param(4, "node matches needed for a coarse estimate", 3, 1000)
+                                     0.1, 600.0, live=True)
+    retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0, live=True)
+    max_retries: int = param(3, "retries before giving up until the next interval", 0, 100, live=True)
+    min_coarse_matches: int = param(4, "node matches needed for a coarse estimate", 3, 1000, live=True)
     restart_sequence_max: int = 1
-    max_nodes: int = param(2000, "bigger graphs are refused", 10, 100_000)
-    max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000)
+    max_nodes: int = param(2000, "bigger graphs are refused", 10, 100_000, live=True)
+    max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000, live=True)
     keep_correspondences: bool = param(True, "merge the last dense correspondences into coarse "
                                        "estimates")
     confirm: bool = param(True, "publish a link only once two estimates from different data agree")
@@ -97,6 +102,8 @@ class PeersConfig:
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
+    quiet_peer_s: float = param(2.0, "re-estimate against a peer's last coarse graph when the own map "
+                                "changes and the peer sent none for this long", 0.1, 3600.0, live=True)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
 
 
@@ -106,6 +113,7 @@ class _PendingRequest:
     coarse_sequence: int
     node_ids: np.ndarray
     sent_at: float
+    data: tuple[str, str]       # (own, peer) graph digests the request was made for
     retries: int = 0
 
 
@@ -150,6 +158,10 @@ class PeerLink:
 
     peer_id: str
     coarse: GraphMessage | None = None
+    coarse_at: float = -np.inf   # when the last coarse graph arrived
+    coarse_data: tuple[str, str] | None = None   # (own, peer) digests of the last coarse estimate
+    exchanged: tuple[str, str] | None = None     # (own, peer) digests of the last answered request
+    wanted: tuple | None = None   # ((own, peer) digests, peer node ids): the dense data to ask for
     dense: GraphMessage | None = None
     dense_cloud: np.ndarray | None = None
     kept: Kept | None = None     # peer -> own inliers kept for merged estimates
@@ -197,10 +209,24 @@ class Peers:
         link = self._accept(msg, "coarse")
         if link is None:
             return None, None
-        link.coarse = msg
+        link.coarse, link.coarse_at = msg, now
         if not self.agent.ready:
             self._count("own_map_not_ready")
             return None, None
+        return self._estimate_coarse(link, now)
+
+    def on_own_map(self, now: float) -> list[tuple[Estimate, DenseRequestMessage | None]]:
+        """After the own map changed: estimates against the last coarse graph of every quiet
+        peer (one that sent none for quiet_peer_s; the others' next graph is due anyway)."""
+        out = []
+        for link in self.links.values():
+            if (link.coarse is not None and self.agent.ready and now - link.coarse_at >= self.cfg.quiet_peer_s
+                    and link.coarse_data != (self.agent.digest, link.coarse.digest)):
+                out.append(self._estimate_coarse(link, now))
+        return out
+
+    def _estimate_coarse(self, link: PeerLink, now: float) -> tuple[Estimate, DenseRequestMessage | None]:
+        msg = link.coarse
         timings: dict = {}
         t0 = time.perf_counter()
         self._recheck_kept(link, msg)
@@ -208,6 +234,7 @@ class Peers:
         reg = register_features(self.model, msg.nodes, self.agent.features,
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
                                 self._coarse_cfg, timings, kept=kept)
+        link.coarse_data = (self.agent.digest, msg.digest)
         estimate = self._judge(link, reg, msg.digest, timings, t0)
         request = self._maybe_request(link, reg, now)
         return estimate, request
@@ -220,7 +247,7 @@ class Peers:
             return None
         if link.pending is not None and msg.requester == self.agent.cfg.name \
                 and msg.request_sequence == link.pending.sequence:
-            link.pending = None
+            link.exchanged, link.pending = link.pending.data, None
         if not self.agent.ready:
             self._count("own_map_not_ready")
             return None
@@ -228,6 +255,7 @@ class Peers:
         t0 = time.perf_counter()
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud = msg, msg.points
+        link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
         reg = register_features(self.model, peer, self.agent.features, msg.points,
                                 self._own_reference(msg.points), self._dense_cfg, timings)
         # a dense answer holds only the requested nodes: name the peer's map by its coarse graph
@@ -236,11 +264,15 @@ class Peers:
         return self._judge(link, reg, peer_digest, timings, t0, dense=msg)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
-        """Retries of unanswered requests (with back-off), and giving up on silent peers."""
+        """Requests the interval held back, retries of unanswered ones (with back-off), and
+        giving up on silent peers."""
         out = []
         for link in self.links.values():
             p = link.pending
             if p is None:
+                request = self._send_wanted(link, now)    # a wish the interval held back
+                if request is not None:
+                    out.append(request)
                 continue
             deadline = p.sent_at + self.cfg.request_timeout_s * self.cfg.retry_backoff ** p.retries
             if now < deadline:
@@ -264,7 +296,7 @@ class Peers:
         problem = self._check(msg)
         if problem is not None:
             counter, text = problem
-            self._count(counter)
+            self.agent.refuse(counter, text)
             self._say_once((counter, msg.agent_id), f"{stream} graph from {msg.agent_id!r} "
                            f"(seq {msg.sequence}) refused: {text}")
             return None
@@ -278,7 +310,7 @@ class Peers:
                 link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
             else:
                 counter = "duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
-                self._count(counter)
+                self.agent.refuse(counter, "")
                 self.log(f"{stream} graph from {msg.agent_id} dropped: sequence {msg.sequence} "
                          f"after {last} ({counter.replace('_', ' ')})")
                 return None
@@ -365,8 +397,9 @@ class Peers:
             reason = self._link_rules(link, reg, hyp)
         if reason != "ok":
             self._count(reason)
+        peer_msg = dense if dense is not None else link.coarse
         est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
-                       link=link.state, registration=reg,
+                       link=link.state, registration=reg, stamp=max(self.agent.stamp, peer_msg.stamp),
                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
                        peer_dense_sequence=dense.sequence if dense is not None else
                        (link.dense.sequence if link.dense else 0), timing_ms=timings)
@@ -432,16 +465,27 @@ class Peers:
 
     # ---- dense requests ------------------------------------------------------------------
     def _maybe_request(self, link: PeerLink, reg: Registration, now: float) -> DenseRequestMessage | None:
-        """Ask for the points of the peer's matched nodes, rate-limited, one request at a time."""
-        if reg.node_matches < self.cfg.min_node_matches or link.pending is not None:
+        """Wish for the points of the peer's matched nodes, and ask now if allowed (else on_tick
+        asks once the interval has passed)."""
+        if reg.node_matches >= self.cfg.min_node_matches:
+            # the peer's graph is the source of the estimate
+            link.wanted = ((self.agent.digest, link.coarse.digest), np.unique(reg.node_pairs[:, 0]))
+        return self._send_wanted(link, now)
+
+    def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
+        """The request for the link's wish: one at a time, rate-limited, and only for graphs not
+        yet exchanged."""
+        if link.wanted is None or link.pending is not None:
+            return None
+        data, wanted = link.wanted
+        if data == link.exchanged:      # nothing new to learn from the same two graphs
             return None
         interval = (self.cfg.min_request_interval_s if link.confirmed is not None
                     else self.cfg.search_request_interval_s)
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
-        wanted = np.unique(reg.node_pairs[:, 0])   # the peer's graph is the source
-        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now)
+        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data)
         link.last_request_at = now
         self._count("requests")
         return self._request_message(link, link.pending)

@@ -67,3 +67,37 @@ def test_wrong_embedding_size_is_an_error():
 
 def test_normalize_label():
     assert normalize_label("  Office   Chair\n") == "office chair"
+
+
+def test_shipped_table_is_minilm_and_spares_loading_it(minilm, tmp_path, monkeypatch):
+    """The shipped vocabulary table holds what MiniLM gives, and an encoder with it never loads
+    MiniLM for those labels; a new label lands in the user cache, read back by the next one."""
+    from sgreg_cli.commands.text_table import vocabulary
+    from sgreg_core.net.text import SHIPPED_TABLE, user_cache_path
+
+    vocab = vocabulary()
+    monkeypatch.setenv("SGREG_CACHE_DIR", str(tmp_path))
+    encoder = TextEncoder(cache_path=user_cache_path(), table=SHIPPED_TABLE)
+    assert set(vocab) <= set(encoder.cached_labels)
+    sample = vocab[::17]
+    np.testing.assert_allclose(encoder.encode(sample), minilm.encode(sample), atol=1e-5)
+    assert not encoder.loaded_model
+    encoder.encode(["a label nobody uses"])
+    assert encoder.loaded_model
+    again = TextEncoder(cache_path=user_cache_path(), table=SHIPPED_TABLE, embed_fn=None)
+    assert "a label nobody uses" in again.cached_labels
+    again.encode(["a label nobody uses", "chair"])
+    assert not again.loaded_model
+
+
+def test_table_written_and_unwritable_cache_is_a_warning(tmp_path):
+    table = tmp_path / "table.npz"
+    TextEncoder(embed_fn=CountingEmbed(), name="counting").write_table(table, ["Door", "window", "door"])
+    enc = TextEncoder(table=table, name="counting", embed_fn=CountingEmbed())
+    assert enc.cached_labels == ["door", "window"]
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    enc = TextEncoder(cache_path=blocked / "cache.npz", embed_fn=CountingEmbed(), name="counting")
+    with pytest.warns(UserWarning, match="not written"):
+        enc.encode(["lamp"])
+    assert enc.encode(["lamp"]).shape == (1, TEXT_DIM)

@@ -93,6 +93,25 @@ def test_bad_input_is_one_line_exit_2(data, tmp_path, capsys, problem):
     assert not (tmp_path / "o.json").exists()
 
 
+def test_many_pairs_load_the_model_once(data, tmp_path, capsys):
+    root, pair = data
+    listing = tmp_path / "pairs.txt"
+    listing.write_text(f"# src ref\n{root / 'src'} {root / 'ref'}\n\n{root / 'src'} {root / 'other'}\n"
+                       f"{tmp_path / 'missing'} {root / 'ref'}\n")
+    out = tmp_path / "all.json"
+    code = main(["register", "--pairs", str(listing), "--json", str(out)])
+    results = json.loads(out.read_text())
+    assert code == 2 and len(results) == 3          # the bad pair is reported, the others run
+    assert results[0]["success"] and registration_rmse(pair.src.points, np.array(results[0]["T"]),
+                                                       pair.T_src_ref) < 0.2
+    assert results[1]["success"] is False and "error" in results[2]
+    assert "1 of 3 pairs registered" in capsys.readouterr().out
+    listing.write_text(f"{root / 'src'}\n")
+    assert main(["register", "--pairs", str(listing)]) == 2
+    assert main(["register", str(root / "src")]) == 2
+    assert "give SRC_DIR REF_DIR, or --pairs FILE" in capsys.readouterr().err
+
+
 def test_tiny_graphs_are_refused_without_matching():
     graph = toy_graph(np.random.default_rng(0), n=2)
     reg = register_graphs(load_model(), graph, graph, PipelineConfig())

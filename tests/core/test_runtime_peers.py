@@ -245,3 +245,56 @@ def test_one_map_intake_for_both_nodes_counts_every_refusal(model):
     assert "refused" in agent.take_map(empty, 2, 2.0)
     assert agent.counters["duplicate_map"] == 1 and agent.counters["bad_instance_map"] == 1
     assert agent.map_sequence == 1                           # the refused map changed nothing
+
+
+def test_no_dense_request_for_graphs_already_exchanged(model, graphs):
+    """The same two graphs give the same dense estimate: once answered, they are not asked for
+    again; a changed map is, once the interval allows (on_tick asks for a held-back wish)."""
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(search_request_interval_s=1.0,
+                                                          min_request_interval_s=1.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.2)
+    for k in range(2, 6):          # b keeps sending the same graph
+        assert reg.on_coarse(b.coarse_message(k), now=float(k))[1] is None
+        assert reg.on_tick(float(k) + 0.5) == []
+    assert reg.counters["requests"] == 1
+    moved = moved_graph(graphs[1], yaw_transform(0.0, (0.03, 0.0, 0.0)), np.random.default_rng(2))
+    b.set_graph(moved, 2, 6.0)
+    _, req = reg.on_coarse(b.coarse_message(6), now=6.0)
+    assert req is not None                                  # new content: asked at once
+    reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=6.1)
+    b.set_graph(graphs[1], 3, 6.5)
+    assert reg.on_coarse(b.coarse_message(7), now=6.5)[1] is None    # within the interval ...
+    [held] = reg.on_tick(7.2)                                        # ... asked once it passed
+    assert held.to_agent == "b" and reg.counters["requests"] == 3
+
+
+def test_an_unanswered_request_is_asked_again(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(search_request_interval_s=1.0, max_retries=0,
+                                                          request_timeout_s=0.5))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert req is not None
+    assert reg.on_tick(1.0) == [] and reg.counters["request_gave_up"] == 1
+    [again] = reg.on_tick(2.1)
+    assert again.sequence != req.sequence
+
+
+def test_own_map_change_is_estimated_against_a_quiet_peer(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_own_map(now=1.0) == []            # b's next graph is due anyway
+    assert reg.on_own_map(now=3.0) == []            # quiet peer, but nothing new on either side
+    a.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(3)), 2, 3.0)
+    [(est, _)] = reg.on_own_map(now=3.5)
+    assert est.peer_id == "b" and est.mode == "coarse"
+    assert est.stamp == max(a.stamp, b.stamp)
+
+
+def test_coarse_graphs_drop_to_a_heartbeat_when_nothing_changes(model, graphs):
+    agent = AgentCore(AgentConfig(name="a", quiet_after_s=3.0, heartbeat_period_s=10.0), model)
+    assert not agent.coarse_due(0.0)                 # no map yet
+    agent.set_graph(graphs[0], 1, 0.0)
+    sent = [t for t in np.arange(0.0, 30.0, 1.0) if agent.coarse_due(t) and agent.broadcast(t)]
+    assert sent == [0.0, 1.0, 2.0, 12.0, 22.0]      # the rate for quiet_after_s, then heartbeats
+    agent.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.05, 0, 0)), np.random.default_rng(4)), 2, 30.0)
+    assert agent.coarse_due(30.0) and agent.broadcast(30.0) and agent.coarse_due(31.0)

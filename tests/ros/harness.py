@@ -63,7 +63,9 @@ class Watcher:
         self.names = names
         self.transforms: dict[tuple, list] = {}
         self.results: list[RegistrationResult] = []
-        self.diagnostics: dict[str, dict] = {}
+        self.diagnostics: dict[str, dict] = {}     # node name -> its counters
+        self.levels: dict[str, list] = {}          # node name -> levels seen, in order
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos.DIAGNOSTICS)
         self.map_pubs = {}
         for n in names:
             self.watch(n)
@@ -74,7 +76,6 @@ class Watcher:
         self.map_pubs[n] = self.node.create_publisher(InstanceMap, f"/{n}/mapping/instances", qos.INSTANCES)
         self.node.create_subscription(TransformStamped, f"/{n}/sgreg/transform", self._on_tf, qos.RESULTS)
         self.node.create_subscription(RegistrationResult, f"/{n}/sgreg/registration", self.results.append, qos.RESULTS)
-        self.node.create_subscription(DiagnosticArray, f"/{n}/sgreg/diagnostics", self._on_diag, qos.RESULTS)
 
     def _on_tf(self, msg):
         key = (msg.child_frame_id.split("/")[0], msg.header.frame_id.split("/")[0])
@@ -83,6 +84,7 @@ class Watcher:
     def _on_diag(self, msg):
         for s in msg.status:
             self.diagnostics[s.name] = {kv.key: kv.value for kv in s.values}
+            self.levels.setdefault(s.name, []).append((s.level[0], s.hardware_id, s.message))
 
     def counter(self, status_name, key) -> int:
         return int(self.diagnostics.get(status_name, {}).get(key, 0))

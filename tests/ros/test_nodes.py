@@ -108,7 +108,7 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     assert w.spin_until(lambda: w.node.count_subscribers("/x/sgreg/coarse") >= 2, 30)
     time.sleep(1.0)
     inject()
-    reg_a, agent_a = "sgreg registration a", "sgreg agent a"
+    reg_a, agent_a = "/a/registration", "/a/agent"
     wanted = [(agent_a, "bad_instance_map", 3), (agent_a, "malformed_message", 1),
               (reg_a, "malformed_message", 1), (reg_a, "rejected_weights", 1),
               (reg_a, "bad_feature_size", 1), (reg_a, "duplicate_sequence", 1),
@@ -135,7 +135,7 @@ def test_a_peer_that_never_answers(two):
         pub_q.publish(m)
 
     deadline = time.monotonic() + 60
-    reg_a = "sgreg registration a"
+    reg_a = "/a/registration"
     while time.monotonic() < deadline and w.counter(reg_a, "request_gave_up") < 1:
         publish_q()
         w.spin_until(lambda: False, 1.0, publish_maps=maps)
@@ -153,6 +153,6 @@ def test_a_peer_that_restarts(two, tmp_path):
         procs.remove(p)
     procs += processes.start_agents(["b"], overrides=FAST, log_dir=tmp_path)
     w.transforms.pop(("a", "b"), None)
-    assert w.spin_until(lambda: w.counter("sgreg registration a", "peer_restart") >= 1
+    assert w.spin_until(lambda: w.counter("/a/registration", "peer_restart") >= 1
                         and verified_pairs_ok(w, frames, [("a", "b")]), 120, publish_maps=maps)
     assert not alive(procs)

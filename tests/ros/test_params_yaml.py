@@ -34,7 +34,7 @@ def test_the_parameter_file_is_written_from_the_declarations():
 
 def test_declarations_come_from_the_dataclasses():
     by_name = {p.name: p for p in REGISTRATION}
-    for name, (default, help_text, low, high, _) in node_params(PeersConfig).items():
+    for name, (default, help_text, low, high, _, _) in node_params(PeersConfig).items():
         p = by_name[name]
         assert (p.default, p.description, p.low, p.high) == (default, help_text, low, high)
     assert {"coarse_rate_hz", "feature_encoding"} <= {p.name for p in AGENT}

@@ -1,0 +1,85 @@
+"""What both nodes share: parameters declared from the configs (the live ones applied at run
+time), the agent id and its topics, the model, and one health status on /diagnostics."""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+
+from sgreg_core.net.model import SGRegModel, load_model
+from sgreg_core.runtime.health import Health, HealthConfig
+
+from . import convert, qos
+from .params import Param, accept_live_changes, agent_name_from, declare_and_read, pick
+
+
+class SgregNode(Node):
+    """Subclasses declare their parameter table, build their core, then call `ready()`; they
+    apply live parameters in `apply` and describe themselves in `summary`."""
+
+    def __init__(self, executable: str, table: list[Param]):
+        super().__init__(executable)   # the node is called what it is run as
+        self.table = table
+        self.p = declare_and_read(self, table)
+        self.name = agent_name_from(self, self.p["agent_name"])
+        self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), time.monotonic())
+        self.problem: str | None = None      # why the node cannot do its job at all
+        self.last_map_at: float | None = None
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+        self.create_timer(1.0, self.publish_diagnostics)
+
+    def topic(self, suffix: str) -> str:
+        """/<agent>/<suffix>: the agent id, not the namespace, names the topics (they agree,
+        or agent_name was given without a namespace)."""
+        return f"/{self.name}/{suffix}"
+
+    def load_model(self) -> SGRegModel | None:
+        """The model, or None with `problem` set: the node then only reports ERROR."""
+        try:
+            return load_model(self.p["weights_path"] or None)
+        except Exception as exc:  # missing file, bad JSON, wrong shapes: all mean "no model"
+            self.problem = f"no model: {exc}"
+            self.get_logger().error(f"{self.problem}; this node will only report diagnostics")
+            return None
+
+    def accept_live_parameters(self) -> None:
+        accept_live_changes(self, self.table, self._apply)
+
+    def _apply(self, changes: dict) -> None:
+        health = pick(HealthConfig, changes)
+        if health:
+            self.health.cfg = replace(self.health.cfg, **health)
+        self.apply(changes)
+        self.get_logger().info("parameters set: " + ", ".join(f"{k}={v!r}" for k, v in changes.items()))
+
+    def apply(self, changes: dict) -> None:
+        """Apply live parameters (already checked) to the node's core."""
+
+    def map_taken(self, why: str | None) -> None:
+        """After the own instance map was offered: log why it was refused, or note its time."""
+        if why:
+            self.get_logger().warning(why)
+        else:
+            self.last_map_at = time.monotonic()
+
+    # ---- diagnostics ---------------------------------------------------------------------
+    def counters(self) -> dict:
+        return {}
+
+    def refused(self) -> int:
+        return 0
+
+    def summary(self) -> str:
+        return ""
+
+    def publish_diagnostics(self) -> None:
+        level, message = self.health.status(time.monotonic(), self.refused(), self.last_map_at, self.problem)
+        self.diag_pub.publish(convert.diagnostics_msg(
+            self.get_fully_qualified_name(), self.name, level, message or self.summary(),
+            self.counters(), self.now()))
+
+    def now(self) -> float:
+        """ROS time (the bag's /clock under use_sim_time)."""
+        return self.get_clock().now().nanoseconds * 1e-9

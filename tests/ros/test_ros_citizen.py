@@ -1,0 +1,211 @@
+"""The nodes as a ROS 2 user meets them, over real DDS: names, run-time parameters, shutdown on
+signals, /diagnostics levels, the topic prefix from agent_name, sim time from `sgreg play
+--clock`, and a quiet link once the maps stop changing."""
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sgreg_msgs.msg import CoarseGraph, DenseRequest, RegistrationResult
+
+from sgreg_cli.bags import play_bag
+from sgreg_ros import qos
+from sgreg_ros.convert import instance_map_to_msg
+
+from .harness import FAST, Watcher, agent_maps, alive, processes
+
+BAGS = Path(__file__).resolve().parents[2] / "bags"
+OK, WARN, ERROR = 0, 1, 2
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+@pytest.fixture
+def agent_a(ros, tmp_path):
+    """Both nodes of agent a (quick map timeout), a watcher, and a's map."""
+    maps, _ = agent_maps(["a", "b"], seed=3)
+    procs = processes.start_agents(["a"], overrides={**FAST, "map_timeout_s": 3.0}, log_dir=tmp_path)
+    w = Watcher(["a"])
+    yield procs, w, maps["a"]
+    processes.stop(procs)
+    w.close()
+
+
+def _set(w, node, **values):
+    client = AsyncParameterClient(w.node, node)
+    assert client.wait_for_services(timeout_sec=30), f"no parameter services on {node}"
+    future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    assert w.spin_until(future.done, 10)
+    return future.result().results
+
+
+def test_nodes_are_named_as_run_and_report_on_diagnostics(agent_a):
+    procs, w, imap = agent_a
+    assert w.wait_ready(["a"]), f"dead: {alive(procs)}"
+    assert w.spin_until(lambda: {("agent", "/a"), ("registration", "/a")}
+                        <= set(w.node.get_node_names_and_namespaces()), 20)
+    # no map for map_timeout_s: ERROR, one status per node, hardware_id = the agent id
+    assert w.spin_until(lambda: all(any(lv == ERROR for lv, _, _ in w.levels.get(n, []))
+                                    for n in ("/a/agent", "/a/registration")), 30), w.levels
+    assert {hw for n in ("/a/agent", "/a/registration") for _, hw, _ in w.levels[n]} == {"a"}
+    assert "no instance map" in w.levels["/a/agent"][-1][2]
+    # a map: OK; then a map the nodes refuse: WARN for that period
+    w.levels.clear()
+    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1.0))
+    assert w.spin_until(lambda: w.levels.get("/a/agent", [(None,)])[-1][0] == OK, 15), w.levels
+    broken = instance_map_to_msg(imap, "a", 2, 2.0)
+    broken.labels = broken.labels[:1]            # labels no longer match the instance ids
+    w.levels.clear()
+    w.map_pubs["a"].publish(broken)
+    assert w.spin_until(lambda: any(lv == WARN for lv, _, _ in w.levels.get("/a/agent", [])), 15), w.levels
+    assert not alive(procs)
+
+
+def test_parameters_take_effect_or_are_refused(agent_a):
+    procs, w, imap = agent_a
+    assert w.wait_ready(["a"]), f"dead: {alive(procs)}"
+    coarse = []
+    w.node.create_subscription(CoarseGraph, "/a/sgreg/coarse", coarse.append, qos.COARSE_SUB)
+    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1.0))
+    assert w.spin_until(lambda: coarse, 20)
+    # a static map: at the rate for quiet_after_s (5 s), then only as a heartbeat (10 s) ...
+    w.spin_until(lambda: False, 5.5)
+    coarse.clear()
+    w.spin_until(lambda: False, 4.0)
+    assert len(coarse) <= 1
+    # ... until the heartbeat is set faster, at run time
+    [ok] = _set(w, "/a/agent", heartbeat_period_s=1.0)
+    assert ok.successful, ok.reason
+    coarse.clear()
+    w.spin_until(lambda: False, 5.0)
+    assert len(coarse) >= 3
+    [ok] = _set(w, "/a/agent", coarse_rate_hz=0.25)      # the timer itself slows down
+    assert ok.successful
+    w.spin_until(lambda: False, 1.0)
+    coarse.clear()
+    w.spin_until(lambda: False, 8.0)
+    assert 1 <= len(coarse) <= 3
+    # invalid values and read-only parameters are refused with the reason
+    [bad] = _set(w, "/a/agent", feature_encoding="bogus")
+    assert not bad.successful and "feature_encoding" in bad.reason
+    [ro] = _set(w, "/a/agent", voxel_size=0.1)
+    assert not ro.successful and "read-only" in ro.reason.lower()
+    [ok] = _set(w, "/a/registration", min_request_interval_s=3.0)
+    assert ok.successful
+    [ro] = _set(w, "/a/registration", confirm=False)
+    assert not ro.successful
+    assert not alive(procs)
+
+
+def _node(args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "sgreg_ros", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True, **kw)
+
+
+@pytest.mark.parametrize("exe", ["agent", "registration"])
+def test_signals_end_a_node_cleanly_at_any_moment(ros, exe):
+    """SIGINT during start-up, SIGTERM once up, and the double SIGINT a terminal plus
+    ros2 launch deliver: exit code 0, no traceback, promptly."""
+    w = Watcher([])
+    try:
+        for sig, when, twice in ((signal.SIGINT, 0.5, False), (signal.SIGTERM, None, False),
+                                 (signal.SIGINT, None, True)):
+            p = _node([exe, "--ros-args", "-r", "__ns:=/s"])
+            if when is None:       # up: subscribed to its map
+                assert w.spin_until(lambda: w.node.count_subscribers("/s/mapping/instances") >= 1, 90)
+            else:
+                time.sleep(when)
+            t0 = time.monotonic()
+            os.killpg(p.pid, sig)
+            if twice:
+                time.sleep(0.05)
+                os.killpg(p.pid, sig)
+            out, _ = p.communicate(timeout=30)
+            took = time.monotonic() - t0
+            assert p.returncode == 0, out[-2000:]
+            assert "Traceback" not in out and "KeyboardInterrupt" not in out, out[-2000:]
+            assert took < 3.0, f"{exe} took {took:.1f} s to exit after {sig.name}"
+    finally:
+        w.close()
+
+
+def test_agent_name_without_namespace_prefixes_the_topics(ros, tmp_path):
+    w = Watcher([])
+    p = _node(["agent", "--ros-args", "-p", "agent_name:=x"])
+    try:
+        assert w.spin_until(lambda: w.node.count_subscribers("/x/mapping/instances") >= 1, 90), p.poll()
+        assert w.node.count_publishers("/x/sgreg/coarse") >= 1
+        assert w.node.count_subscribers("/mapping/instances") == 0
+    finally:
+        os.killpg(p.pid, signal.SIGINT)
+        p.communicate(timeout=30)
+        w.close()
+    clash = subprocess.run([sys.executable, "-m", "sgreg_ros", "agent", "--ros-args", "-r", "__ns:=/a",
+                            "-p", "agent_name:=x"], capture_output=True, text=True, timeout=120)
+    assert clash.returncode == 2 and "differs from the namespace" in clash.stderr
+
+
+def test_sim_time_from_play_clock_stamps_outputs_in_bag_time(ros, tmp_path):
+    """Nodes under use_sim_time, a bag played with /clock: coarse graphs and results carry the
+    bag's time, and the nodes' timers run on it."""
+    bag = BAGS / "apartment_opposite"
+    procs = processes.start_agents(["a", "b"], overrides={"use_sim_time": True}, log_dir=tmp_path)
+    w = Watcher([])
+    coarse, results = [], []
+    w.node.create_subscription(CoarseGraph, "/a/sgreg/coarse", coarse.append, qos.COARSE_SUB)
+    w.node.create_subscription(RegistrationResult, "/b/sgreg/registration", results.append, qos.RESULTS)
+    player = rclpy.create_node("test_player")
+    try:
+        assert w.spin_until(lambda: all(w.node.count_subscribers(f"/{n}/mapping/instances") >= 2
+                                        for n in "ab"), 120), f"dead: {alive(procs)}"
+        thread = threading.Thread(target=play_bag, args=(player, bag), daemon=True,
+                                  kwargs={"rate": 2.0, "delay": 0.5, "clock_hz": 40.0, "log": lambda s: None})
+        thread.start()
+        w.spin_until(lambda: not thread.is_alive() and results, 120)
+        w.spin_until(lambda: False, 2.0)
+    finally:
+        processes.stop(procs)
+        player.destroy_node()
+        w.close()
+    start, end = 1_700_000_000.0, 1_700_000_030.0     # the shipped bags' time span
+    assert coarse and results
+    assert all(start <= m.header.stamp.sec <= end for m in coarse), [m.header.stamp.sec for m in coarse[:5]]
+    assert all(start <= r.header.stamp.sec <= end for r in results)
+    assert len(coarse) >= 5   # the coarse timer ran on the bag's clock
+
+
+def test_link_goes_quiet_when_maps_stop_changing(ros, tmp_path):
+    """Two agents with static maps: once registered, no dense request goes out and coarse graphs
+    only as heartbeats."""
+    maps, _ = agent_maps(["a", "b"], seed=5)
+    procs = processes.start_agents(["a", "b"], overrides=FAST, log_dir=tmp_path)
+    w = Watcher(["a", "b"])
+    seen: list = []
+    for n in "ab":
+        w.node.create_subscription(CoarseGraph, f"/{n}/sgreg/coarse", lambda m: seen.append(("coarse", m.agent_id)), qos.COARSE_SUB)
+        w.node.create_subscription(DenseRequest, f"/{n}/sgreg/dense_request", lambda m: seen.append(("request", m.from_agent)), qos.DENSE_REQUEST)
+    try:
+        assert w.wait_ready(["a", "b"]), f"dead: {alive(procs)}"
+        assert w.spin_until(lambda: ("a", "b") in w.transforms and ("b", "a") in w.transforms, 120,
+                            publish_maps=maps), f"not registered; dead: {alive(procs)}"
+        w.spin_until(lambda: False, 6.0, publish_maps=maps)   # the same maps, over and over
+        seen.clear()
+        w.spin_until(lambda: False, 8.0, publish_maps=maps)
+        assert sum(k == "request" for k, _ in seen) == 0, seen
+        assert sum(k == "coarse" for k, _ in seen) <= 2, seen    # heartbeat: every 10 s per agent
+        assert not alive(procs)
+    finally:
+        processes.stop(procs)
+        w.close()
