@@ -209,3 +209,18 @@ def test_link_goes_quiet_when_maps_stop_changing(ros, tmp_path):
     finally:
         processes.stop(procs)
         w.close()
+
+
+def test_without_a_model_the_node_stays_up_and_reports_error(ros, tmp_path):
+    w = Watcher([])
+    p = _node(["registration", "--ros-args", "-r", "__ns:=/m", "-p", f"weights_path:={tmp_path / 'none.safetensors'}"])
+    try:
+        assert w.spin_until(lambda: w.levels.get("/m/registration"), 90), p.poll()
+        level, hardware_id, message = w.levels["/m/registration"][-1]
+        assert level == ERROR and hardware_id == "m" and message.startswith("no model")
+        assert p.poll() is None
+    finally:
+        os.killpg(p.pid, signal.SIGINT)
+        out, _ = p.communicate(timeout=30)
+        w.close()
+    assert p.returncode == 0 and "Traceback" not in out
