@@ -35,8 +35,8 @@ class ReplayConfig:
         and start them again at once: a robot whose software crashes mid-mission."""
 
     rate: float = 1.0
-    tail_s: float = 18.0
-    settle_s: float = 6.0
+    tail_s: float = 34.0
+    settle_s: float = 22.0   # past AgentConfig.quiet_after_s: coarse graphs are heartbeats by then
     ready_timeout_s: float = 90.0
     params_file: str | None = None
     overrides: dict = field(default_factory=dict)

@@ -72,6 +72,8 @@ class AgentNode(SgregNode):
 
     def on_instances(self, raw: bytes) -> None:
         self.map_taken(convert.take_instance_map(raw, self.core.take_map, self.core.refuse))
+        if self.core.ready and not self.core.counters["coarse_sent"]:
+            self.publish_coarse()     # the first graph goes out at once, not at the next tick
 
     def publish_coarse(self) -> None:
         now = time.monotonic()

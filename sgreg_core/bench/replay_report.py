@@ -11,7 +11,7 @@ PAPER_SUCCESS_RATE = 0.324   # SG-Reg T-RO 2025, two-agent success rate (differe
 PAPER_KB_PER_FRAME = 52.0
 
 
-def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 6.0) -> dict:
+def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0) -> dict:
     """The JSON report of one replay: the score (every frame, registrability, links) and, from a
     replay through real nodes (run_), traffic, node load and played messages."""
     report = {

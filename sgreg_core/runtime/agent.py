@@ -30,14 +30,16 @@ class AgentConfig:
         coarse graph goes out only every heartbeat_period_s (peers that join late get the last
         one at once from the transient-local topic; the heartbeat tells the others the agent
         is alive). Until then it goes out at the node's rate: a front end often holds a map
-        still for a few seconds, and peers keep registering against it."""
+        still for a few seconds, and peers keep registering against it (on the real replay
+        suite, 5 s instead of 20 s lost a fifth of the query frames, most of them successes:
+        84.1 % instead of 86.8 % over registrable frames, training rooms 84.9 % vs 87.3 %)."""
 
     name: str = "a"
     min_nodes: int = param(3, "graphs with fewer nodes are neither sent nor registered", 1, 1000)
     max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
     dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval",
                                         0.0, 3600.0, live=True)
-    quiet_after_s: float = param(5.0, "coarse graphs drop to the heartbeat once the graph is "
+    quiet_after_s: float = param(20.0, "coarse graphs drop to the heartbeat once the graph is "
                                  "unchanged for this long", 0.0, 3600.0, live=True)
     heartbeat_period_s: float = param(10.0, "coarse graph period while the graph does not change",
                                       1.0, 3600.0, live=True)

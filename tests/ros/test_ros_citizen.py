@@ -36,7 +36,7 @@ def ros():
 def agent_a(ros, tmp_path):
     """Both nodes of agent a (quick map timeout), a watcher, and a's map."""
     maps, _ = agent_maps(["a", "b"], seed=3)
-    procs = processes.start_agents(["a"], overrides={**FAST, "map_timeout_s": 3.0}, log_dir=tmp_path)
+    procs = processes.start_agents(["a"], overrides={**FAST, "map_timeout_s": 3.0, "quiet_after_s": 3.0}, log_dir=tmp_path)
     w = Watcher(["a"])
     yield procs, w, maps["a"]
     processes.stop(procs)
@@ -80,8 +80,8 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     w.node.create_subscription(CoarseGraph, "/a/sgreg/coarse", coarse.append, qos.COARSE_SUB)
     w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1.0))
     assert w.spin_until(lambda: coarse, 20)
-    # a static map: at the rate for quiet_after_s (5 s), then only as a heartbeat (10 s) ...
-    w.spin_until(lambda: False, 5.5)
+    # a static map: at the rate for quiet_after_s (3 s here), then only as a heartbeat (10 s) ...
+    w.spin_until(lambda: False, 4.0)
     coarse.clear()
     w.spin_until(lambda: False, 4.0)
     assert len(coarse) <= 1
@@ -190,7 +190,7 @@ def test_link_goes_quiet_when_maps_stop_changing(ros, tmp_path):
     """Two agents with static maps: once registered, no dense request goes out and coarse graphs
     only as heartbeats."""
     maps, _ = agent_maps(["a", "b"], seed=5)
-    procs = processes.start_agents(["a", "b"], overrides=FAST, log_dir=tmp_path)
+    procs = processes.start_agents(["a", "b"], overrides={**FAST, "quiet_after_s": 3.0}, log_dir=tmp_path)
     w = Watcher(["a", "b"])
     seen: list = []
     for n in "ab":
