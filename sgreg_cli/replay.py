@@ -4,6 +4,7 @@ memory. Scoring is sgreg_core.bench.replay_score."""
 from __future__ import annotations
 
 import json
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -16,6 +17,7 @@ from sgreg_msgs.msg import RegistrationResult
 
 from sgreg_core.bench.bandwidth import BandwidthMeter
 from sgreg_core.bench.replay_score import ResultRecord
+from sgreg_core.runtime.auth import init_keystore
 from sgreg_ros.convert import transform_from_msg
 from sgreg_ros.qos import RESULTS
 
@@ -32,7 +34,9 @@ class ReplayConfig:
     what a static map costs the link). ready_timeout_s: how long nodes may take to start.
     overrides: ROS parameters given to every node (e.g. weights_path).
     restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
-        and start them again at once: a robot whose software crashes mid-mission."""
+        and start them again at once: a robot whose software crashes mid-mission.
+    authenticate: the agents sign and check their messages with a fleet keystore made for the
+        replay (unless overrides name a keystore), as a deployed fleet would."""
 
     rate: float = 1.0
     tail_s: float = 34.0
@@ -42,6 +46,7 @@ class ReplayConfig:
     overrides: dict = field(default_factory=dict)
     log_dir: Path | None = None
     restart: tuple[str, float] | None = None
+    authenticate: bool = True
 
 
 @dataclass
@@ -102,7 +107,21 @@ class _Sampler:
 
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     names = agents_in_bag(bag)
-    procs = processes.start_agents(names, cfg.params_file or processes.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir)
+    overrides = dict(cfg.overrides)
+    keys = None
+    if cfg.authenticate and "keystore" not in overrides:
+        keys = tempfile.TemporaryDirectory(prefix="sgreg-keys-")
+        init_keystore(keys.name, names)
+        overrides["keystore"] = keys.name
+    try:
+        return _run_replay(bag, cfg, names, overrides, log)
+    finally:
+        if keys is not None:
+            keys.cleanup()
+
+
+def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) -> ReplayRun:
+    procs = processes.start_agents(names, cfg.params_file or processes.DEFAULT_PARAMS, overrides, cfg.log_dir)
     sampler = _Sampler(procs)
     rclpy.init()
     node = rclpy.create_node("sgreg_replay")
@@ -176,7 +195,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
                 processes.kill(victims)
                 for p in victims:
                     procs.remove(p)
-                fresh = processes.start_agents([restart[0]], cfg.params_file or processes.DEFAULT_PARAMS, cfg.overrides, cfg.log_dir,
+                fresh = processes.start_agents([restart[0]], cfg.params_file or processes.DEFAULT_PARAMS, overrides, cfg.log_dir,
                                             log_suffix="_restarted")
                 procs += fresh
                 sampler.track(fresh, " (restarted)")

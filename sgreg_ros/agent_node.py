@@ -15,6 +15,7 @@ from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap
 from sgreg_core.config import param
 from sgreg_core.maps.scene_graph import GraphConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.health import HealthConfig
 from sgreg_core.runtime.wire import ENCODINGS
 
@@ -34,7 +35,7 @@ class AgentNodeConfig:
                                   live=True)
 
 
-PARAMS = params_of(AgentNodeConfig, AgentConfig, GraphConfig, HealthConfig)
+PARAMS = params_of(AgentNodeConfig, AgentConfig, GraphConfig, HealthConfig, AuthConfig)
 
 
 class AgentNode(SgregNode):
@@ -78,17 +79,25 @@ class AgentNode(SgregNode):
     def publish_coarse(self) -> None:
         now = time.monotonic()
         if self.core.coarse_due(now):
-            self.coarse_pub.publish(convert.coarse_to_msg(self.core.broadcast(now), self.encoding))
+            msg = convert.coarse_to_msg(self.core.broadcast(now), self.encoding)
+            self.coarse_pub.publish(self.auth.sign(msg, self.topic("sgreg/coarse")))
 
     def on_request(self, raw: bytes) -> None:
         try:
-            req = convert.request_from_msg(convert.decode(raw, DenseRequest))
+            msg = convert.decode(raw, DenseRequest)
+            req = convert.request_from_msg(msg)
         except convert.ConversionError as exc:
-            return self.get_logger().warning(self.core.refuse("malformed_message", f"dense request refused: {exc}"))
+            return self.refusal(self.core.refuse("malformed_message", f"dense request refused: {exc}"),
+                                key="malformed request")
+        refused = self.auth.check(msg, self.topic("sgreg/dense_request"), req.from_agent)
+        if refused:
+            return self.refusal(self.core.refuse(refused, f"dense request {req.sequence} "
+                                                 f"from {req.from_agent!r} refused: {refused}"), key=refused)
         dense, why = self.core.answer_request(req, time.monotonic())
         if dense is None:
-            return self.get_logger().warning(why)
-        self.dense_pub.publish(convert.dense_to_msg(dense, self.encoding))
+            return self.refusal(why, key=" ".join(why.split()[:2]))
+        msg = convert.dense_to_msg(dense, self.encoding)
+        self.dense_pub.publish(self.auth.sign(msg, self.topic("sgreg/dense")))
 
     # ---- diagnostics ---------------------------------------------------------------------
     def counters(self) -> dict:

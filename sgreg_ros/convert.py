@@ -1,8 +1,11 @@
 """sgreg_msgs <-> the plain types of sgreg_core.runtime. No decisions here: only field copies,
-with malformed messages raising ConversionError (the node logs it and counts it)."""
+with malformed messages raising ConversionError (the node logs it and counts it). Every decoder
+(`*_from_msg`) raises nothing else, whatever the message holds: a fuzz test feeds them
+thousands of mutated messages."""
 from __future__ import annotations
 
 import array
+import functools
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -22,6 +25,20 @@ from .pointcloud import PointCloudError, pack_xyz_id, unpack_xyz_id
 
 class ConversionError(ValueError):
     """A message whose fields do not fit together."""
+
+
+def decoder(fn):
+    """Turn any exception of a decoder into ConversionError: a field combination nobody
+    thought of must cost one message, not the node."""
+    @functools.wraps(fn)
+    def guarded(msg):
+        try:
+            return fn(msg)
+        except ConversionError:
+            raise
+        except Exception as exc:
+            raise ConversionError(f"{type(msg).__name__} does not decode: {type(exc).__name__}: {exc}") from None
+    return guarded
 
 
 def decode(raw: bytes, cls):
@@ -51,6 +68,7 @@ def _f32(values, n: int, name: str) -> np.ndarray:
 
 
 # ---- instance maps -----------------------------------------------------------------------
+@decoder
 def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
     n = len(msg.instance_ids)
     if len(msg.labels) != n or len(msg.label_scores) not in (0, n):
@@ -119,6 +137,7 @@ def coarse_to_msg(g: GraphMessage, encoding: int) -> CoarseGraph:
     return msg
 
 
+@decoder
 def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
     n = len(msg.node_ids)
     try:
@@ -146,6 +165,7 @@ def dense_to_msg(g: GraphMessage, encoding: int) -> DenseGraph:
     return msg
 
 
+@decoder
 def dense_from_msg(msg: DenseGraph) -> GraphMessage:
     g = coarse_from_msg(msg.graph)
     if msg.agent_id != g.agent_id:
@@ -177,6 +197,7 @@ def request_to_msg(r: DenseRequestMessage, stamp: float) -> DenseRequest:
     return msg
 
 
+@decoder
 def request_from_msg(msg: DenseRequest) -> DenseRequestMessage:
     return DenseRequestMessage(from_agent=msg.from_agent, to_agent=msg.to_agent,
                                sequence=int(msg.sequence), coarse_sequence=int(msg.coarse_sequence),

@@ -9,10 +9,15 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 
 from sgreg_core.net.model import SGRegModel, load_model
+from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.health import Health, HealthConfig
 
 from . import convert, qos
 from .params import Param, accept_live_changes, agent_name_from, declare_and_read, pick
+from .signing import MessageAuth
+
+
+LOG_PERIOD_S = 10.0
 
 
 class SgregNode(Node):
@@ -25,8 +30,10 @@ class SgregNode(Node):
         self.p = declare_and_read(self, table)
         self.name = agent_name_from(self, self.p["agent_name"])
         self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), time.monotonic())
+        self.auth = MessageAuth(AuthConfig(**pick(AuthConfig, self.p)), self.name, self.get_logger())
         self.problem: str | None = None      # why the node cannot do its job at all
         self.last_map_at: float | None = None
+        self._logged: dict[str, tuple[float, int]] = {}   # refusal kind -> (last logged, suppressed)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
         self.create_timer(1.0, self.publish_diagnostics)
 
@@ -48,6 +55,7 @@ class SgregNode(Node):
         accept_live_changes(self, self.table, self._apply)
 
     def _apply(self, changes: dict) -> None:
+        self.p.update(changes)
         health = pick(HealthConfig, changes)
         if health:
             self.health.cfg = replace(self.health.cfg, **health)
@@ -60,9 +68,24 @@ class SgregNode(Node):
     def map_taken(self, why: str | None) -> None:
         """After the own instance map was offered: log why it was refused, or note its time."""
         if why:
-            self.get_logger().warning(why)
+            self.refusal(why)
         else:
             self.last_map_at = time.monotonic()
+
+    def refusal(self, why: str, key: str | None = None) -> None:
+        """Log a refused input, at most once per LOG_PERIOD_S per kind (the first words, or
+        `key`): a flood of bad messages costs counters, not a flood of log lines."""
+        key = key or " ".join(why.split()[:3])
+        now = time.monotonic()
+        last, suppressed = self._logged.get(key, (-1e9, 0))
+        if now - last < LOG_PERIOD_S:
+            self._logged[key] = (last, suppressed + 1)
+            return
+        if len(self._logged) > 1000:
+            self._logged.clear()
+        self._logged[key] = (now, 0)
+        more = f" ({suppressed} more like it in the last {LOG_PERIOD_S:g} s)" if suppressed else ""
+        self.get_logger().warning(why + more)
 
     # ---- diagnostics ---------------------------------------------------------------------
     def counters(self) -> dict:

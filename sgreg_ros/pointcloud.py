@@ -64,6 +64,9 @@ def unpack_xyz_id(msg: PointCloud2, id_field: str) -> tuple[np.ndarray, np.ndarr
     data = bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data
     if step < POINT_STEP or len(data) != n * step:
         raise PointCloudError(f"PointCloud2 data is {len(data)} bytes, expected {n} x {step}")
+    if any(not 0 <= offsets[k][0] <= step - 4 for k in want) or len({offsets[k][0] for k in want}) < 4:
+        raise PointCloudError(f"PointCloud2 field offsets {[offsets[k][0] for k in want]} do not fit "
+                              f"a point of {step} bytes")
     dtype = np.dtype({
         "names": list(want),
         "formats": ["<f4", "<f4", "<f4", "<u4"],

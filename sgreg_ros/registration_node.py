@@ -20,6 +20,7 @@ from sgreg_core.config import param
 from sgreg_core.maps.scene_graph import GraphConfig
 from sgreg_core.pose.verdict import VerdictConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.health import HealthConfig
 from sgreg_core.runtime.peers import Peers, PeersConfig
 
@@ -37,12 +38,14 @@ class RegistrationNodeConfig:
     peers: list = param(help="peer agent ids; [''] or []: every agent whose /<id>/sgreg/coarse appears",
                         factory=lambda: [""])
     discovery_period_s: float = param(2.0, "how often to look for new peers", 0.1, 60.0, live=True)
+    max_message_mb: float = param(32.0, "bigger peer messages are refused before they are decoded",
+                                  0.1, 1024.0, live=True)
 
 
 # the agent's own map is refused or kept as the agent node does; it answers no requests and
 # sends no coarse graphs
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
-                   HealthConfig, skip=("dense_min_interval_s", "heartbeat_period_s"))
+                   HealthConfig, AuthConfig, skip=("dense_min_interval_s", "heartbeat_period_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
 
@@ -55,6 +58,7 @@ class RegistrationNode(SgregNode):
         self.fixed_peers = [x for x in p["peers"] if x]
         self.result_seq = 0
         self.request_pubs: dict[str, object] = {}
+        self.peer_entities: dict[str, list] = {}    # peer -> its publisher and subscriptions
         self.discovery_timer = None
         if model is not None:
             agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
@@ -62,7 +66,7 @@ class RegistrationNode(SgregNode):
                                     pipeline=PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p)))
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
-            self.peers = Peers(peers_cfg, self.agent, model, log=self.get_logger().warning)
+            self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
             self.transform_pub = self.create_publisher(TransformStamped, self.topic("sgreg/transform"), qos.RESULTS)
             self.result_pub = self.create_publisher(RegistrationResult, self.topic("sgreg/registration"),
                                                     qos.RESULTS)
@@ -89,19 +93,39 @@ class RegistrationNode(SgregNode):
 
     # ---- peers ---------------------------------------------------------------------------
     def discover_peers(self) -> None:
+        """Listen to every agent whose coarse topic appears: with a keystore only the fleet's
+        agents, and never more than max_peers (a flood of fake topics costs nothing)."""
+        fleet = set(self.auth.keystore.owners.values()) if self.auth.keystore else None
         for topic, _ in self.get_topic_names_and_types():
             m = COARSE_TOPIC.match(topic)
-            if m and m.group(1) != self.name and m.group(1) not in self.request_pubs:
-                self.add_peer(m.group(1))
+            peer = m.group(1) if m else None
+            if peer is None or peer == self.name or peer in self.request_pubs or (fleet is not None and peer not in fleet):
+                continue
+            if len(self.request_pubs) >= self.peers.cfg.max_peers:
+                self.refusal(f"not listening to '{peer}': already {len(self.request_pubs)} peers (max_peers)",
+                             key="max_peers")
+                continue
+            self.add_peer(peer)
 
     def add_peer(self, peer: str) -> None:
         if peer == self.name or peer in self.request_pubs:
             return
         self.request_pubs[peer] = self.create_publisher(DenseRequest, f"/{peer}/sgreg/dense_request",
                                                         qos.DENSE_REQUEST)
-        self.create_subscription(CoarseGraph, f"/{peer}/sgreg/coarse", self.on_coarse, qos.COARSE_SUB, raw=True)
-        self.create_subscription(DenseGraph, f"/{peer}/sgreg/dense", self.on_dense, qos.DENSE, raw=True)
+        self.peer_entities[peer] = [
+            self.create_subscription(CoarseGraph, f"/{peer}/sgreg/coarse", lambda raw: self.on_coarse(raw, peer),
+                                     qos.COARSE_SUB, raw=True),
+            self.create_subscription(DenseGraph, f"/{peer}/sgreg/dense", lambda raw: self.on_dense(raw, peer),
+                                     qos.DENSE, raw=True)]
         self.get_logger().info(f"listening to peer '{peer}'")
+
+    def drop_peer(self, peer: str) -> None:
+        """Stop listening to a discovered peer that went silent (discovery may add it again)."""
+        if peer in self.fixed_peers or peer not in self.request_pubs:
+            return
+        self.destroy_publisher(self.request_pubs.pop(peer))
+        for sub in self.peer_entities.pop(peer, []):
+            self.destroy_subscription(sub)
 
     # ---- callbacks -----------------------------------------------------------------------
     def on_instances(self, raw: bytes) -> None:
@@ -110,21 +134,24 @@ class RegistrationNode(SgregNode):
         if why is None:
             self.guarded("the own map's estimates", lambda: self.publish_all(self.peers.on_own_map(time.monotonic())))
 
-    def on_coarse(self, raw: bytes) -> None:
-        graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse")
+    def on_coarse(self, raw: bytes, peer: str) -> None:
+        graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse", peer)
         if graph is not None:
             self.guarded(f"coarse graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish_all([self.peers.on_coarse(graph, time.monotonic())]))
 
-    def on_dense(self, raw: bytes) -> None:
-        graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense")
+    def on_dense(self, raw: bytes, peer: str) -> None:
+        graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense", peer)
         if graph is not None:
             self.guarded(f"dense graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish(self.peers.on_dense(graph, time.monotonic())))
 
     def on_tick(self) -> None:
-        for request in self.peers.on_tick(time.monotonic()):
+        now = time.monotonic()
+        for request in self.peers.on_tick(now):
             self.send_request(request)
+        for peer in self.peers.expire(now):
+            self.drop_peer(peer)
 
     def guarded(self, what: str, work) -> None:
         try:
@@ -133,17 +160,35 @@ class RegistrationNode(SgregNode):
             self.get_logger().error(self.agent.refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
 
     # ---- helpers -------------------------------------------------------------------------
-    def _decode(self, fn, raw: bytes, cls, what: str):
-        try:
-            return fn(convert.decode(raw, cls))
-        except convert.ConversionError as exc:
-            self.get_logger().warning(self.agent.refuse("malformed_message", f"malformed {what} graph refused: {exc}"))
+    def _decode(self, fn, raw: bytes, cls, what: str, peer: str):
+        """The graph a peer's message carries, or None (refusal counted): undecodable, sent in
+        another agent's name, or (with a keystore) not signed by the peer's key."""
+        if len(raw) > self.p["max_message_mb"] * 1e6:   # refused before a copy is decoded
+            size, raw = len(raw), None
+            self.refusal(self.agent.refuse("oversized_message", f"{what} graph of {size / 1e6:.1f} MB on "
+                                           f"/{peer}'s topic refused (max_message_mb)"))
             return None
+        try:
+            msg = convert.decode(raw, cls)
+            graph = fn(msg)
+        except convert.ConversionError as exc:
+            self.refusal(self.agent.refuse("malformed_message", f"malformed {what} graph refused: {exc}"),
+                         key=f"malformed {peer}")
+            return None
+        refused = "agent_mismatch" if graph.agent_id != peer else \
+            self.auth.check(msg, f"/{peer}/sgreg/{what}", peer)
+        if refused:
+            self.refusal(self.agent.refuse(refused, f"{what} graph {graph.sequence} on /{peer}'s "
+                                                        f"topic (agent_id {graph.agent_id!r}) refused: {refused}"),
+                         key=f"{refused} {peer}")
+            return None
+        return graph
 
     def send_request(self, request) -> None:
         pub = self.request_pubs.get(request.to_agent)
         if pub is not None:
-            pub.publish(convert.request_to_msg(request, self.now()))
+            msg = convert.request_to_msg(request, self.now())
+            pub.publish(self.auth.sign(msg, f"/{request.to_agent}/sgreg/dense_request"))
 
     def publish_all(self, outcomes) -> None:
         for estimate, request in outcomes:

@@ -15,6 +15,8 @@ def add_arguments(p):
     p.add_argument("--params-file", help="ROS parameter YAML (default: config/sgreg.yaml)")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--log-dir", help="write each node's output to a file here instead of the terminal")
+    p.add_argument("--keystore", help="fleet keystore (sgreg keys init): the nodes sign and check "
+                                      "their messages; without it they run unauthenticated")
 
 
 def run(args) -> int:
@@ -25,7 +27,7 @@ def run(args) -> int:
     if len(set(args.names)) != len(args.names) or not all(n.isidentifier() for n in args.names):
         print("sgreg agents: agent names must be distinct identifiers (a, b, robot_1, ...)", file=sys.stderr)
         return 2
-    overrides = {"weights_path": args.weights} if args.weights else None
+    overrides = {k: v for k, v in (("weights_path", args.weights), ("keystore", args.keystore)) if v} or None
     procs = start_agents(args.names, args.params_file or DEFAULT_PARAMS, overrides,
                          Path(args.log_dir) if args.log_dir else None)
     print(f"started {len(procs)} nodes for agents {', '.join(args.names)}; Ctrl-C stops them", flush=True)

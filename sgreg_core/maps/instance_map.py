@@ -35,6 +35,9 @@ def labelled_mask(imap: InstanceMap) -> np.ndarray:
     return (imap.instance > 0) & np.isin(imap.instance, ids)
 
 
+MAX_COORD_M = 10_000.0
+
+
 def validate_instance_map(imap: InstanceMap, where: str = "instance map") -> InstanceMap:
     """Check an in-memory map; raise InstanceMapError naming `where` on the first problem."""
     pts = np.asarray(imap.points)
@@ -47,6 +50,8 @@ def validate_instance_map(imap: InstanceMap, where: str = "instance map") -> Ins
     if not np.isfinite(pts).all():
         bad = int((~np.isfinite(pts)).any(axis=1).sum())
         raise InstanceMapError(f"{where}: {bad} points are NaN or infinite")
+    if np.abs(pts).max() > MAX_COORD_M:   # a building, not a continent: grids over it must fit
+        raise InstanceMapError(f"{where}: points lie more than {MAX_COORD_M:g} m from the origin")
     inst = np.asarray(imap.instance)
     if inst.shape != (len(pts),):
         raise InstanceMapError(f"{where}: instance must have shape ({len(pts)},), got {inst.shape}")

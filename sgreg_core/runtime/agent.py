@@ -26,6 +26,9 @@ class AgentConfig:
     min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
     max_points_in_map: a bigger instance map is refused (protects the node's memory and time).
     dense_min_interval_s: at most one dense answer per requester per this interval.
+    dense_answers_per_s: at most this many dense answers per second to all requesters
+        together (a token bucket of that size): requests under many names cannot make the
+        agent send much more than it receives.
     quiet_after_s / heartbeat_period_s: once the graph has not changed for quiet_after_s, a
         coarse graph goes out only every heartbeat_period_s (peers that join late get the last
         one at once from the transient-local topic; the heartbeat tells the others the agent
@@ -39,6 +42,8 @@ class AgentConfig:
     max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
     dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval",
                                         0.0, 3600.0, live=True)
+    dense_answers_per_s: float = param(2.0, "dense answers per second to all requesters together",
+                                       0.1, 100.0, live=True)
     quiet_after_s: float = param(20.0, "coarse graphs drop to the heartbeat once the graph is "
                                  "unchanged for this long", 0.0, 3600.0, live=True)
     heartbeat_period_s: float = param(10.0, "coarse graph period while the graph does not change",
@@ -63,6 +68,7 @@ class AgentCore:
         self.timing_ms: dict = {}
         self._reference: tuple[tuple, ReferenceCloud] | None = None
         self._last_answer: dict[str, float] = {}   # requester -> time of the last dense answer
+        self._budget = (0.0, -np.inf)                # (tokens, time) of the dense answer budget
         self._last_broadcast: tuple[str, float] = ("", -np.inf)   # (digest, time) of the last coarse
         self._changed_at = -np.inf    # when a coarse graph last went out with new content
         self.counters: Counter = Counter()            # refusals and messages sent, by name
@@ -172,6 +178,9 @@ class AgentCore:
         Returns (message, "") or (None, one-line reason, counted): a request for another agent,
         from other weights, before any map, or within dense_min_interval_s of the last answer
         to the same requester is not answered."""
+        if not req.from_agent or req.from_agent == self.cfg.name or len(req.node_ids) > 100_000:
+            return None, self.refuse("bad_request", f"dense request from {req.from_agent!r} for "
+                                     f"{len(req.node_ids)} nodes refused")
         if req.to_agent != self.cfg.name:
             return None, self.refuse("request_not_for_me", f"dense request for '{req.to_agent}' on "
                                      f"{self.cfg.name}'s topic; ignored")
@@ -185,6 +194,15 @@ class AgentCore:
             return None, self.refuse("request_rate_limited", f"dense request {req.sequence} from "
                                      f"{req.from_agent} within {self.cfg.dense_min_interval_s} s of the "
                                      "last answer; not answered")
+        rate = self.cfg.dense_answers_per_s
+        tokens, then = self._budget
+        tokens = min(max(rate, 1.0), tokens + (now - then) * rate)
+        if tokens < 1.0:
+            return None, self.refuse("request_over_budget", f"dense request {req.sequence} from "
+                                     f"{req.from_agent}: over the budget of {rate:g} answers/s; not answered")
+        self._budget = (tokens - 1.0, now)
+        if len(self._last_answer) > 1000:    # forget requesters of long ago: bounded memory
+            self._last_answer = {k: t for k, t in self._last_answer.items() if now - t < 3600}
         self._last_answer[req.from_agent] = now
         self.counters["dense_sent"] += 1
         return self.dense_message(self.counters["dense_sent"], req.node_ids, req.from_agent,

@@ -58,8 +58,12 @@ class PeersConfig:
         timeout * retry_backoff^k, up to max_retries; then the link gives up until the next
         interval.
     min_coarse_matches: node matches needed to attempt a coarse estimate.
-    restart_sequence_max: a sequence that goes back to at most this value means the peer
-        restarted (its map frame is new); any other step back is an out-of-order message.
+    sequence_window: a sequence is taken when it lies 1..window past the last one. Anything
+        else (a jump, a step back) is held and taken only when the next message continues it,
+        a step back then being a restart of the peer (its map frame is new): a single forged
+        or replayed number can neither lock a peer out nor force a restart.
+    max_peers / peer_timeout_s: at most this many peers are kept; a peer silent for
+        peer_timeout_s is forgotten (expire()).
     max_nodes / max_points: bigger messages are refused (oversized).
     keep_correspondences: keep the inlier point correspondences of the link's last dense
         estimate and merge them with node-center matches when only coarse data arrives (the
@@ -91,7 +95,10 @@ class PeersConfig:
     retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0, live=True)
     max_retries: int = param(3, "retries before giving up until the next interval", 0, 100, live=True)
     min_coarse_matches: int = param(4, "node matches needed for a coarse estimate", 3, 1000, live=True)
-    restart_sequence_max: int = 1
+    sequence_window: int = 1000
+    max_peers: int = param(16, "peers kept at most (others are refused)", 1, 1000, live=True)
+    peer_timeout_s: float = param(120.0, "a peer silent for this long is forgotten", 10.0, 86400.0,
+                                  live=True)
     max_nodes: int = param(2000, "bigger graphs are refused", 10, 100_000, live=True)
     max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000, live=True)
     keep_correspondences: bool = param(True, "merge the last dense correspondences into coarse "
@@ -166,6 +173,9 @@ class PeerLink:
     dense_cloud: np.ndarray | None = None
     kept: Kept | None = None     # peer -> own inliers kept for merged estimates
     pending: _PendingRequest | None = None
+    asked: list = field(default_factory=list)    # recent request sequences: dense answers must name one
+    heard_at: float = -np.inf                    # when its last accepted message arrived
+    held: dict = field(default_factory=dict)     # stream -> a sequence outside the window, held
     last_request_at: float = -np.inf
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
     candidate: Hypothesis | None = None
@@ -206,7 +216,7 @@ class Peers:
     def on_coarse(self, msg: GraphMessage, now: float) -> tuple[Estimate | None, DenseRequestMessage | None]:
         if msg.agent_id == self.agent.cfg.name:
             return None, None
-        link = self._accept(msg, "coarse")
+        link = self._accept(msg, "coarse", now)
         if link is None:
             return None, None
         link.coarse, link.coarse_at = msg, now
@@ -242,7 +252,14 @@ class Peers:
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
             return None
-        link = self._accept(msg, "dense")
+        if msg.requester != self.agent.cfg.name or msg.agent_id not in self.links \
+                or msg.request_sequence not in self.links[msg.agent_id].asked:
+            self.agent.refuse("unrequested_dense", "")
+            self._say_once(("unrequested_dense", msg.agent_id), f"dense graph from {msg.agent_id!r} "
+                           f"answers no request of ours (requester {msg.requester!r}, request "
+                           f"{msg.request_sequence}); refused")
+            return None
+        link = self._accept(msg, "dense", now)
         if link is None:
             return None
         if link.pending is not None and msg.requester == self.agent.cfg.name \
@@ -290,8 +307,21 @@ class Peers:
             out.append(self._request_message(link, p))
         return out
 
+    def expire(self, now: float) -> list[str]:
+        """Forget peers silent for peer_timeout_s; returns their ids (the node drops their topics)."""
+        gone = [p for p, link in self.links.items() if now - link.heard_at > self.cfg.peer_timeout_s]
+        for peer in gone:
+            del self.links[peer]
+            self._count("peer_expired")
+            self.log(f"peer {peer} silent for {self.cfg.peer_timeout_s:g} s: forgotten")
+        return gone
+
+    def _dummy(self):
+        out = []
+        return out
+
     # ---- validation ----------------------------------------------------------------------
-    def _accept(self, msg: GraphMessage, stream: str) -> PeerLink | None:
+    def _accept(self, msg: GraphMessage, stream: str, now: float) -> PeerLink | None:
         """The peer's link if the message is usable; else None, with a counter and a log line."""
         problem = self._check(msg)
         if problem is not None:
@@ -300,24 +330,41 @@ class Peers:
             self._say_once((counter, msg.agent_id), f"{stream} graph from {msg.agent_id!r} "
                            f"(seq {msg.sequence}) refused: {text}")
             return None
-        link = self.links.setdefault(msg.agent_id, PeerLink(msg.agent_id))
+        link = self.links.get(msg.agent_id)
+        if link is None:
+            if len(self.links) >= self.cfg.max_peers:
+                self.agent.refuse("too_many_peers", "")
+                self._say_once(("too_many_peers", msg.agent_id), f"{stream} graph from {msg.agent_id!r} "
+                               f"refused: already {len(self.links)} peers (max_peers)")
+                return None
+            link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
         last = link.last_seq.get(stream)
-        if last is not None and msg.sequence <= last:
-            if msg.sequence <= self.cfg.restart_sequence_max and last > msg.sequence:
-                self._count("peer_restart")
-                self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {msg.sequence}): "
-                         "forgetting its old map")
-                link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
-            else:
-                counter = "duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
+        if last is not None and not 0 < msg.sequence - last <= self.cfg.sequence_window:
+            held = link.held.get(stream)
+            if held is None or msg.sequence != held + 1:    # held until the next message continues it
+                link.held[stream] = msg.sequence
+                counter = ("duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
+                           if msg.sequence < last else "sequence_jump")
                 self.agent.refuse(counter, "")
-                self.log(f"{stream} graph from {msg.agent_id} dropped: sequence {msg.sequence} "
+                self.log(f"{stream} graph from {msg.agent_id} held back: sequence {msg.sequence} "
                          f"after {last} ({counter.replace('_', ' ')})")
                 return None
+            if msg.sequence < last:      # a stream that went back and goes on: a new one
+                self._count("peer_restart")
+                self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {held}, {msg.sequence}): "
+                         "forgetting its old map")
+                link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
+        elif stream == "coarse" and last is not None and msg.sequence - last > 1:
+            # lost on the way (a full queue, the network); dense answers also go to others
+            self.counters["missed_messages"] += msg.sequence - last - 1
+        link.held.pop(stream, None)
         link.last_seq[stream] = msg.sequence
+        link.heard_at = now
         return link
 
     def _check(self, msg: GraphMessage) -> tuple[str, str] | None:
+        if not msg.agent_id or msg.agent_id == self.agent.cfg.name:
+            return "bad_agent_id", f"agent id {msg.agent_id!r}"
         if msg.weights_id != self.agent.weights_id:
             return ("rejected_weights", f"features from weights {msg.weights_id!r}, this agent "
                     f"runs {self.agent.weights_id!r}")
@@ -328,9 +375,11 @@ class Peers:
         dim = self.agent.features.descriptor.shape[1] if self.agent.ready else desc.shape[1]
         if desc.ndim != 2 or desc.shape != (n, dim) or centers.shape != (n, 3):
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
-        arrays = [desc, centers] + ([msg.points] if msg.points is not None else [])
+        if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
+            return "bad_nodes", "extents do not match the nodes, or a node id repeats"
+        arrays = [desc, centers, msg.extents] + ([msg.points] if msg.points is not None else [])
         if not all(np.isfinite(a).all() for a in arrays):
-            return "invalid_values", "NaN or inf in features, centers or points"
+            return "invalid_values", "NaN or inf in features, centers, extents or points"
         if n < self.agent.cfg.min_nodes:
             return "too_few_nodes", f"{n} nodes (min_nodes={self.agent.cfg.min_nodes})"
         if msg.points is not None:
@@ -491,6 +540,7 @@ class Peers:
         return self._request_message(link, link.pending)
 
     def _request_message(self, link: PeerLink, p: _PendingRequest) -> DenseRequestMessage:
+        link.asked = (link.asked + [p.sequence])[-8:]
         return DenseRequestMessage(from_agent=self.agent.cfg.name, to_agent=link.peer_id,
                                    sequence=p.sequence, coarse_sequence=p.coarse_sequence,
                                    weights_id=self.agent.weights_id, node_ids=p.node_ids)

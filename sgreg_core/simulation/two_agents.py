@@ -178,3 +178,27 @@ def simulate(scene: InstanceMap, rng: np.random.Generator, cfg: TwoAgentConfig |
         if progress:
             progress((i + 1) / 2)
     return TwoAgentRun(*runs)
+
+
+def overlapping_views(names: list[str], seed: int = 0, rooms: int = 1) -> tuple[dict, dict]:
+    """One synthetic scene seen whole by each agent (no walk): overlapping crops along x, disjoint
+    point samples, each in its own random frame. ({name: InstanceMap}, {name: T_scene_map}):
+    quick, static maps for node tests and probes."""
+    from .synth.scene import SynthConfig, generate_scene
+
+    rng = np.random.default_rng(seed)
+    scene = generate_scene(seed, SynthConfig(rooms=rooms))
+    x = scene.points[:, 0]
+    lo, hi = x.min(), x.max()
+    owner = rng.integers(0, len(names), x.size)            # each point sampled by one agent only
+    maps, frames = {}, {}
+    k = len(names)
+    for i, name in enumerate(names):
+        start = lo + (hi - lo) * 0.25 * i / max(k - 1, 1)
+        keep = (x >= start) & (x <= start + 0.75 * (hi - lo)) & (owner == i)
+        part = select_points(scene, keep)
+        T = yaw_transform(rng.uniform(-np.pi, np.pi), (*rng.uniform(-8, 8, 2), 0.0))
+        frames[name] = T
+        maps[name] = InstanceMap(points=transform_points(np.linalg.inv(T), part.points).astype(np.float32),
+                                 instance=part.instance, labels=part.labels, scores=part.scores)
+    return maps, frames

@@ -143,9 +143,36 @@ def test_duplicate_out_of_order_and_restart(model, graphs):
     assert reg.counters["duplicate_sequence"] == 1
     assert reg.on_coarse(b.coarse_message(3), now=0.2) == (None, None)
     assert reg.counters["out_of_order_sequence"] == 1
-    est, _ = reg.on_coarse(b.coarse_message(0), now=0.3)   # b restarted
+    # b restarted: its first number is held, the next one that continues it is a new stream
+    assert reg.on_coarse(b.coarse_message(1), now=0.3) == (None, None)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.3)
     assert reg.counters["peer_restart"] == 1 and est is not None
     assert any("restarted" in line for line in logs)
+
+
+def test_one_forged_sequence_neither_locks_out_nor_restarts(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(7), now=0.0)
+    link = reg.links["b"]
+    assert reg.on_coarse(b.coarse_message(2**32 - 1), now=0.1) == (None, None)   # a jump
+    assert reg.on_coarse(b.coarse_message(0), now=0.2) == (None, None)           # a "restart"
+    assert reg.counters["sequence_jump"] == 1 and reg.counters["peer_restart"] == 0
+    est, _ = reg.on_coarse(b.coarse_message(8), now=1.0)                          # the real peer goes on
+    assert est is not None and reg.links["b"] is link
+
+
+def test_dense_graphs_only_in_reply_and_peers_bounded(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(max_peers=1, peer_timeout_s=10.0))
+    assert reg.on_dense(b.dense_message(1, None, "a", 99), now=0.0) is None       # nobody asked
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(2, None, "x", req.sequence), now=0.1) is None   # asked by x
+    assert reg.counters["unrequested_dense"] == 2
+    assert reg.on_dense(b.dense_message(3, req.node_ids, "a", req.sequence), now=0.2) is not None
+    c = b.coarse_message(1)
+    c.agent_id = "c"
+    assert reg.on_coarse(c, now=0.3) == (None, None) and reg.counters["too_many_peers"] == 1
+    assert reg.expire(now=5.0) == [] and reg.expire(now=20.0) == ["b"] and not reg.links
+    assert reg.on_coarse(c, now=21.0)[0] is not None                              # room again
 
 
 def test_other_weights_are_refused_and_said_once(model, graphs):
@@ -183,7 +210,8 @@ def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, coun
 
 def test_dense_points_naming_unknown_nodes_are_refused(model, graphs):
     a, b, reg, _ = make_agents(model, graphs)
-    dense = b.dense_message(1)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    dense = b.dense_message(1, None, "a", req.sequence)
     dense.point_node = dense.point_node + 1000
     assert reg.on_dense(dense, now=0.0) is None
     assert reg.counters["bad_points"] == 1

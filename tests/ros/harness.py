@@ -4,18 +4,14 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import InstanceMap, RegistrationResult
 
-from sgreg_core.geometry import transform_points, yaw_transform
 from sgreg_core.metrics import two_agent_success
 from sgreg_core.bench.replay_score import ground_truth
-from sgreg_core.maps.instance_map import select_points
-from sgreg_core.simulation.synth.scene import SynthConfig, generate_scene
-from sgreg_core.types import InstanceMap as CoreMap
+from sgreg_core.simulation.two_agents import overlapping_views
 from sgreg_cli import processes
 from sgreg_ros import qos
 from sgreg_ros.convert import instance_map_to_msg, transform_from_msg
@@ -37,24 +33,8 @@ def verified_pairs_ok(w, frames, pairs):
 
 
 def agent_maps(names, seed=0, rooms=1):
-    """One synthetic scene seen by each agent: overlapping crops along x, disjoint point samples,
-    each in its own random frame. Returns ({name: InstanceMap}, {name: T_scene_map})."""
-    rng = np.random.default_rng(seed)
-    scene = generate_scene(seed, SynthConfig(rooms=rooms))
-    x = scene.points[:, 0]
-    lo, hi = x.min(), x.max()
-    owner = rng.integers(0, len(names), x.size)            # each point sampled by one agent only
-    maps, frames = {}, {}
-    k = len(names)
-    for i, name in enumerate(names):
-        start = lo + (hi - lo) * 0.25 * i / max(k - 1, 1)
-        keep = (x >= start) & (x <= start + 0.75 * (hi - lo)) & (owner == i)
-        part = select_points(scene, keep)
-        T = yaw_transform(rng.uniform(-np.pi, np.pi), (*rng.uniform(-8, 8, 2), 0.0))
-        frames[name] = T
-        maps[name] = CoreMap(points=transform_points(np.linalg.inv(T), part.points).astype(np.float32),
-                             instance=part.instance, labels=part.labels, scores=part.scores)
-    return maps, frames
+    """One synthetic scene seen by each agent ({name: InstanceMap}, {name: T_scene_map})."""
+    return overlapping_views(names, seed, rooms)
 
 
 class Watcher:

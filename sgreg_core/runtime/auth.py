@@ -1,0 +1,139 @@
+"""Who may speak for an agent: every coarse graph, dense request and dense graph is signed with
+its sender's Ed25519 key (PyNaCl), over the topic it is published on and the message's bytes
+(with the signature left empty), so a process without that key can neither forge nor move a
+message to another topic. DDS-Security (SROS2) is the transport-level answer on full ROS
+installs; the Fast DDS of the wheels is built without it, hence this.
+
+A fleet keystore is a folder:
+    private/<agent>.key   hex Ed25519 seed of an agent this machine runs (mode 0600)
+    public/<agent>.pub    hex public key of every agent of the fleet
+`sgreg keys init/add/list` manage it. A key's id is the first 16 hex digits of the sha256 of its
+public key; a message names the key that signed it, and the receiver checks that the key
+belongs to the agent the message claims to come from."""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..config import param
+
+
+class KeystoreError(ValueError):
+    """A keystore that cannot be read or written; the message says why in one line."""
+
+
+@dataclass
+class AuthConfig:
+    """keystore: the fleet keystore folder; empty: run unauthenticated (said loudly, once).
+    max_age_s: a signed message whose signing time is further than this from the receiver's
+    clock is refused as stale (robots' clocks are assumed synchronised to well within it)."""
+
+    keystore: str = param("", "fleet keystore folder (sgreg keys init); empty: unauthenticated")
+    max_age_s: float = param(30.0, "signed messages older or newer than this are refused as stale",
+                             1.0, 3600.0)
+
+
+def key_id(public: bytes) -> str:
+    return hashlib.sha256(public).hexdigest()[:16]
+
+
+class Keystore:
+    """The public keys of a fleet and the private keys of the agents run here."""
+
+    def __init__(self, root: str | Path):
+        from nacl.signing import SigningKey, VerifyKey
+
+        self.root = Path(root)
+        if not (self.root / "public").is_dir():
+            raise KeystoreError(f"{self.root} is not a keystore (no public/ folder; see sgreg keys init)")
+        self.owners: dict[str, str] = {}           # key id -> agent
+        self._verify: dict[str, VerifyKey] = {}
+        self._sign: dict[str, SigningKey] = {}
+        try:
+            for path in sorted((self.root / "public").glob("*.pub")):
+                vk = VerifyKey(bytes.fromhex(path.read_text().strip()))
+                kid = key_id(bytes(vk))
+                self.owners[kid], self._verify[kid] = path.stem, vk
+            for path in sorted((self.root / "private").glob("*.key")):
+                self._sign[path.stem] = SigningKey(bytes.fromhex(path.read_text().strip()))
+        except (OSError, ValueError) as exc:
+            raise KeystoreError(f"keystore {self.root}: {exc}") from None
+
+    def signer(self, agent: str) -> tuple[str, object]:
+        """(key id, signing key) of an agent run here; KeystoreError when its key is missing."""
+        sk = self._sign.get(agent)
+        if sk is None:
+            raise KeystoreError(f"keystore {self.root} holds no private key of agent '{agent}'")
+        return key_id(bytes(sk.verify_key)), sk
+
+    def check(self, kid: str, claimed_agent: str, payload: bytes, signature: bytes) -> str | None:
+        """None when `signature` is kid's over payload and kid belongs to claimed_agent, else the
+        refusal counter: unsigned, unknown_key, key_not_agents or bad_signature."""
+        from nacl.exceptions import BadSignatureError
+
+        if not kid or not signature:
+            return "unsigned"
+        vk = self._verify.get(kid)
+        if vk is None:
+            return "unknown_key"
+        if self.owners[kid] != claimed_agent:
+            return "key_not_agents"
+        try:
+            vk.verify(payload, bytes(signature))
+        except (BadSignatureError, ValueError):
+            return "bad_signature"
+        return None
+
+
+def sign(signing_key, payload: bytes) -> bytes:
+    return bytes(signing_key.sign(payload).signature)
+
+
+# ---- managing a keystore (sgreg keys) ------------------------------------------------------
+def init_keystore(root: str | Path, agents: list[str]) -> list[tuple[str, str]]:
+    """Create (or extend) a keystore with a new key pair for each agent; [(agent, key id)]."""
+    from nacl.signing import SigningKey
+
+    root = Path(root)
+    (root / "private").mkdir(parents=True, exist_ok=True)
+    (root / "public").mkdir(parents=True, exist_ok=True)
+    os.chmod(root / "private", 0o700)
+    made = []
+    for agent in agents:
+        _check_name(agent)
+        if (root / "private" / f"{agent}.key").exists():
+            raise KeystoreError(f"{root} already holds a key of agent '{agent}'")
+        sk = SigningKey.generate()
+        private = root / "private" / f"{agent}.key"
+        private.write_text(bytes(sk).hex() + "\n")
+        os.chmod(private, 0o600)
+        (root / "public" / f"{agent}.pub").write_text(bytes(sk.verify_key).hex() + "\n")
+        made.append((agent, key_id(bytes(sk.verify_key))))
+    return made
+
+
+def add_public_key(root: str | Path, agent: str, public_hex: str) -> str:
+    """Add a peer's public key (hex, as `sgreg keys list` prints it); returns its key id."""
+    from nacl.signing import VerifyKey
+
+    _check_name(agent)
+    try:
+        vk = VerifyKey(bytes.fromhex(public_hex.strip()))
+    except ValueError as exc:
+        raise KeystoreError(f"not an Ed25519 public key: {exc}") from None
+    (Path(root) / "public").mkdir(parents=True, exist_ok=True)
+    (Path(root) / "public" / f"{agent}.pub").write_text(bytes(vk).hex() + "\n")
+    return key_id(bytes(vk))
+
+
+def list_keys(root: str | Path) -> list[dict]:
+    ks = Keystore(root)
+    return [{"agent": agent, "key_id": kid, "private_here": agent in ks._sign,
+             "public": bytes(ks._verify[kid]).hex()} for kid, agent in sorted(ks.owners.items(), key=lambda x: x[1])]
+
+
+def _check_name(agent: str) -> None:
+    if not agent or not agent.replace("_", "").isalnum():
+        raise KeystoreError(f"agent id {agent!r} must be letters, digits and '_'")

@@ -1,0 +1,87 @@
+"""Signing the node's outgoing sgreg messages and checking incoming ones (sgreg_core.runtime.auth):
+the signature covers the topic and every field of the message but `signature`, in a canonical
+encoding. Not the CDR bytes: CDR leaves its alignment padding uninitialised, so the same message
+serialises to different bytes."""
+from __future__ import annotations
+
+import array
+import struct
+import time
+
+from sgreg_core.runtime.auth import AuthConfig, Keystore, KeystoreError, sign
+
+from .params import ParameterError
+
+UNAUTHENTICATED = ("running UNAUTHENTICATED (no keystore parameter): any process on this DDS "
+                   "domain can speak for any agent. Make a fleet keystore with `sgreg keys init` "
+                   "and pass -p keystore:=DIR (docs/SECURITY.md)")
+
+
+class MessageAuth:
+    """sign(msg, topic) before publishing; check(msg, topic, agent) -> None or a refusal counter.
+    Without a keystore both are no-ops and the node says so once, loudly."""
+
+    def __init__(self, cfg: AuthConfig, agent: str, logger):
+        self.cfg = cfg
+        self.keystore = None
+        if not cfg.keystore:
+            logger.warning(UNAUTHENTICATED)
+            return
+        try:
+            self.keystore = Keystore(cfg.keystore)
+            self.key_id, self._key = self.keystore.signer(agent)
+        except KeystoreError as exc:
+            raise ParameterError(f"parameter 'keystore': {exc}") from None
+
+    @staticmethod
+    def _payload(msg, topic: str) -> bytes:
+        parts = [topic.encode(), b"\0"]
+        _canonical(msg, parts, skip="signature")
+        return b"".join(parts)
+
+    def sign(self, msg, topic: str):
+        if self.keystore is not None:
+            msg.key_id, msg.signed_ns, msg.signature = self.key_id, time.time_ns(), b""
+            msg.signature = sign(self._key, self._payload(msg, topic))
+        return msg
+
+    def check(self, msg, topic: str, agent: str) -> str | None:
+        """Why a message on `topic` that claims to come from `agent` is refused, or None."""
+        if self.keystore is None:
+            return None
+        if not msg.key_id or not len(msg.signature):
+            return "unsigned"
+        if abs(time.time_ns() - msg.signed_ns) > self.cfg.max_age_s * 1e9:
+            return "stale_message"
+        signature, msg.signature = bytes(msg.signature), b""
+        try:
+            return self.keystore.check(msg.key_id, agent, self._payload(msg, topic), signature)
+        finally:
+            msg.signature = signature
+
+
+def _canonical(value, out: list, skip: str = "") -> None:
+    """Append an unambiguous encoding of a ROS message (fields in declaration order, each
+    length-prefixed) to `out`."""
+    if hasattr(value, "get_fields_and_field_types"):
+        for name in value.get_fields_and_field_types():
+            if name != skip:
+                _canonical(getattr(value, name), out)
+    elif isinstance(value, str):
+        data = value.encode()
+        out += [struct.pack("<cQ", b"s", len(data)), data]
+    elif isinstance(value, (bytes, bytearray, memoryview, array.array)) or hasattr(value, "tobytes"):
+        data = value.tobytes() if hasattr(value, "tobytes") else bytes(value)
+        out += [struct.pack("<cQ", b"b", len(data)), data]
+    elif isinstance(value, (list, tuple)):
+        out.append(struct.pack("<cQ", b"l", len(value)))
+        for item in value:
+            _canonical(item, out)
+    elif isinstance(value, bool):
+        out.append(b"t" if value else b"f")
+    elif isinstance(value, int):
+        out += [b"i", str(value).encode(), b";"]
+    elif isinstance(value, float):
+        out.append(struct.pack("<cd", b"d", value))
+    else:
+        raise TypeError(f"cannot sign a field of type {type(value).__name__}")
