@@ -18,12 +18,15 @@ UNAUTHENTICATED = ("running UNAUTHENTICATED (no keystore parameter): any process
 
 
 class MessageAuth:
-    """sign(msg, topic) before publishing; check(msg, topic, agent) -> None or a refusal counter.
-    Without a keystore both are no-ops and the node says so once, loudly."""
+    """sign(msg, topic) before publishing; check(msg, topic, agent) -> None or a refusal counter:
+    unsigned, stale_message, unknown_key, key_not_agents, bad_signature, or replayed (signed
+    no later than the last message of that key taken on that topic). Without a keystore both are no-ops and
+    the node says so once, loudly."""
 
     def __init__(self, cfg: AuthConfig, agent: str, logger):
         self.cfg = cfg
         self.keystore = None
+        self._newest: dict[tuple, int] = {}   # (topic, key) -> signing time of the last message taken
         if not cfg.keystore:
             logger.warning(UNAUTHENTICATED)
             return
@@ -55,9 +58,16 @@ class MessageAuth:
             return "stale_message"
         signature, msg.signature = bytes(msg.signature), b""
         try:
-            return self.keystore.check(msg.key_id, agent, self._payload(msg, topic), signature)
+            refused = self.keystore.check(msg.key_id, agent, self._payload(msg, topic), signature)
         finally:
             msg.signature = signature
+        if refused:
+            return refused
+        # a sender signs in time order: an older signing time is a captured message played again
+        if msg.signed_ns <= self._newest.get((topic, msg.key_id), 0):
+            return "replayed"
+        self._newest[topic, msg.key_id] = msg.signed_ns
+        return None
 
 
 def _canonical(value, out: list, skip: str = "") -> None:

@@ -89,6 +89,27 @@ def test_forged_and_moved_graphs_are_refused(fleet):
     assert not alive(procs)
 
 
+def test_replayed_signed_messages_change_nothing(fleet):
+    """b's own signed graphs, captured and sent again: valid signatures, old sequence numbers."""
+    w, procs, maps, frames, seen = fleet
+    pub = w.publisher(CoarseGraph, "/b/sgreg/coarse", qos.COARSE_SUB)
+    def refused():   # played again within max_age_s: replayed; older: stale
+        return sum(w.counter("/a/registration", k) for k in ("replayed", "stale_message"))
+
+    before = refused()
+    assert w.spin_until(lambda: pub.get_subscription_count() >= 2, 10)   # a's registration and the watcher
+    for raw in seen["coarse"][:3] + seen["coarse"][-3:]:
+        pub.publish(deserialize_message(raw, CoarseGraph))
+        w.spin_until(lambda: False, 0.2, publish_maps=maps)
+    # DDS may drop one of a burst; every one delivered is refused
+    assert w.spin_until(lambda: refused() >= before + 4, 20), w.diagnostics.get("/a/registration")
+    assert w.counter("/a/registration", "replayed") >= 1
+    assert w.counter("/a/registration", "peer_restart") == 0
+    w.transforms.clear()
+    assert w.spin_until(lambda: verified_pairs_ok(w, frames, [("a", "b")]), 60, publish_maps=maps)
+    nothing_wrong(w, frames)
+
+
 def test_a_point_cloud_with_offsets_past_the_point_crashes_nothing(fleet):
     w, procs, maps, frames, seen = fleet
     bad = deserialize_message(seen["dense"][-1], DenseGraph)
