@@ -39,7 +39,7 @@ class ReplayConfig:
         replay (unless overrides name a keystore), as a deployed fleet would."""
 
     rate: float = 1.0
-    tail_s: float = 34.0
+    tail_s: float = 42.0    # a 20 s window after settle_s: two heartbeat periods
     settle_s: float = 22.0   # past AgentConfig.quiet_after_s: coarse graphs are heartbeats by then
     ready_timeout_s: float = 90.0
     params_file: str | None = None
