@@ -74,7 +74,10 @@ class AgentNode(SgregNode):
     def on_instances(self, raw: bytes) -> None:
         self.map_taken(convert.take_instance_map(raw, self.core.take_map, self.core.refuse))
         if self.core.ready and not self.core.counters["coarse_sent"]:
-            self.publish_coarse()     # the first graph goes out at once, not at the next tick
+            # the first graph goes out at once, and the timer starts over: the same graph again
+            # at the next tick, a fraction of a second later, would be no new evidence to a peer
+            self.publish_coarse()
+            self.coarse_timer.reset()
 
     def publish_coarse(self) -> None:
         now = time.monotonic()
