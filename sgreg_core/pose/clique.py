@@ -23,13 +23,14 @@ from scipy.spatial.distance import pdist, squareform
 def _igraph():
     """python-igraph, imported on first use without matplotlib: igraph loads it (when installed)
     for drawing, which sgreg never asks of it, and that alone costs ~0.4 s of every start-up."""
-    if "igraph" not in sys.modules and "matplotlib" not in sys.modules:
+    block = "igraph" not in sys.modules and "matplotlib" not in sys.modules
+    if block:
         sys.modules["matplotlib"] = None      # makes igraph's optional import fail fast
-        try:
-            import igraph
-        finally:
+    try:
+        import igraph
+    finally:
+        if block:
             del sys.modules["matplotlib"]
-    import igraph
     return igraph
 
 
