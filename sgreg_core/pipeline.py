@@ -3,6 +3,11 @@
 One pipeline for every caller (the `sgreg register` CLI, `sgreg bench-register`, the ROS
 registration node through runtime/peers.py), so that what is benchmarked is what runs.
 
+Each map is levelled on its own floor and walls first (maps/level.py: a robot's gravity is off
+by a degree or two, differently per robot), its graph is built and registered in that upright
+frame, and T is turned back into the maps' own frames: a full SE(3), whose residual tilt ICP
+refines.
+
     dense:  encode both graphs -> node matches (dual softmax) -> point matches (Sinkhorn)
             -> estimate_pose on the point correspondences
     coarse: node matches -> estimate_pose on the matched node centers only
@@ -19,11 +24,13 @@ clouds, and the verdict (pose/verdict.py: evidence, ambiguity, confidence) is ta
 better supported of the estimate and its refinement.
 
 Public API:
-    PipelineConfig                 graph, dense / coarse PoseConfig, mode, icp, min_nodes
+    PipelineConfig                 level, graph, dense / coarse PoseConfig, mode, icp, min_nodes
     Correspondences                point pairs with the node pair each comes from
     Registration                   T (SRC -> REF), verdict, confidence, matches, timings
     register_graphs(model, src_graph, ref_graph, cfg, timings=None) -> Registration
-    build_graphs(src_map, ref_map, cfg, timings) -> (src_graph, ref_graph)   ("graph" stage)
+    build_graphs(src_map, ref_map, cfg, timings) -> (src_graph, ref_graph)   (levelled;
+                                   "level" and "graph" stages)
+    to_map_frames(reg, src_level, ref_level)   T between levelled frames -> between the maps
     register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings, kept)
     node_cloud(graph) -> (N, 3)    all node points of a graph (the verification cloud)
     warm_up(model)                 load the text encoder now, so that no timing includes it
@@ -39,15 +46,17 @@ import numpy as np
 from .net.model import NodeFeatures, SGRegModel
 from .pose import PoseConfig, ReferenceCloud, estimate_pose
 from .pose.verdict import Evidence, VerdictConfig
+from .maps.level import LevelConfig, Levelling, level_map
 from .maps.scene_graph import GraphConfig, build_scene_graph
+from .geometry import invert_transform
 from .types import InstanceMap, SceneGraph
 
 MODES = ("dense", "coarse")   # what PipelineConfig.mode asks for; "merged" = coarse + kept
 ICP_MODES = ("never", "coarse", "always")
-# graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
+# level: gravity of both maps; graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
 # (label embeddings, node point sampling, shape + point features, GNN); node_match /
 # point_match: matching; pose: estimation, verification and ICP; total: the whole call.
-TIMING_STAGES = ("graph", "text", "sample", "shape", "gnn", "node_match", "point_match", "pose",
+TIMING_STAGES = ("level", "graph", "text", "sample", "shape", "gnn", "node_match", "point_match", "pose",
                  "total")
 
 
@@ -69,7 +78,8 @@ def _coarse_pose() -> PoseConfig:
 
 @dataclass
 class PipelineConfig:
-    """graph:       scene-graph construction (only used when starting from instance maps).
+    """level:       levelling of each map before its graph is built (maps/level.py).
+    graph:          scene-graph construction (only used when starting from instance maps).
     pose:           estimator settings of dense mode (point correspondences).
     coarse_pose:    estimator settings of coarse mode (node-center correspondences).
     mode:           "dense" (points) or "coarse" (node centers only, merged with kept
@@ -81,6 +91,7 @@ class PipelineConfig:
                     the pose configs' own `icp`.
     min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes")."""
 
+    level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
     pose: PoseConfig = field(default_factory=_dense_pose)
     coarse_pose: PoseConfig = field(default_factory=_coarse_pose)
@@ -142,8 +153,12 @@ class Registration:
     """Outcome of one registration.
 
     T:               (4, 4) float64 mapping SRC points into REF's frame (ICP-refined when
-                     PipelineConfig.icp asks for it and ICP kept the fitness); identity when
-                     nothing was estimated.
+                     PipelineConfig.icp asks for it and ICP kept the fitness), between the maps'
+                     own frames; when nothing was estimated, the identity between the
+                     levelled frames.
+    T_levelled:      the same between the levelled frames the graphs were built in.
+    levelling:       {"src": ..., "ref": ...} each map's levelling (Levelling.to_json: tilt_deg,
+                     up, ok, reason); empty when the caller gave graphs of unlevelled maps.
     success:         True only when the verdict accepted the estimate.
     reason:          "ok", "too_few_nodes", "no_node_matches" or the estimator's reason
                      (pose/verdict.py REASONS).
@@ -166,6 +181,8 @@ class Registration:
     pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp)."""
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    T_levelled: np.ndarray = field(default_factory=lambda: np.eye(4))
+    levelling: dict = field(default_factory=dict)
     success: bool = False
     reason: str = "too_few_nodes"
     confidence: float = 0.0
@@ -219,6 +236,8 @@ class Registration:
                          for k, v in vars(self.evidence).items()},
             "T_competitor": None if self.T_competitor is None else
             np.asarray(self.T_competitor, np.float64).tolist(),
+            "tilt_deg": {k: v["tilt_deg"] for k, v in self.levelling.items()},
+            "levelling": self.levelling,
             "timing_ms": {k: round(float(v), 3) for k, v in self.timing_ms.items()},
         }
 
@@ -296,6 +315,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
                         cfg.pose_config(), groups=groups)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
+    out.T_levelled = res.T
     out.confidence, out.evidence, out.T_competitor = res.confidence, res.evidence, res.T_competitor
     out.inlier_mask = res.inlier_mask
     out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
@@ -324,16 +344,37 @@ def register_graphs(model: SGRegModel, src_graph: SceneGraph, ref_graph: SceneGr
     ref = model.encode(ref_graph, dense=dense, timings=timings)
     out = register_features(model, src, ref, node_cloud(src_graph), node_cloud(ref_graph), cfg,
                             timings)
-    timings["total"] = timings.get("graph", 0.0) + 1e3 * (time.perf_counter() - t_start)
+    to_map_frames(out, src_graph.level, ref_graph.level)
+    timings["total"] = (timings.get("level", 0.0) + timings.get("graph", 0.0)
+                        + 1e3 * (time.perf_counter() - t_start))
     return out
+
+
+def to_map_frames(reg: Registration, src_level: Levelling | None,
+                  ref_level: Levelling | None) -> Registration:
+    """Turn reg's T (and competitor), estimated between the levelled graphs, into T between the
+    maps' own frames: T = R_ref^-1 T_levelled R_src. None: that map was not levelled."""
+    S = src_level.T if src_level is not None else np.eye(4)
+    R_inv = invert_transform(ref_level.T) if ref_level is not None else np.eye(4)
+    reg.T = R_inv @ reg.T_levelled @ S
+    if reg.T_competitor is not None:
+        reg.T_competitor = R_inv @ reg.T_competitor @ S
+    reg.levelling = {name: lev.to_json() for name, lev in (("src", src_level), ("ref", ref_level))
+                     if lev is not None}
+    return reg
 
 
 def build_graphs(src_map: InstanceMap, ref_map: InstanceMap, cfg: PipelineConfig | None = None,
                  timings: dict | None = None) -> tuple[SceneGraph, SceneGraph]:
-    """Scene graphs of both instance maps; their build time goes to timings["graph"]."""
+    """Scene graphs of both instance maps, each built on the levelled map (graph.level says
+    how); timings["level"] and timings["graph"] get the time."""
     cfg = cfg or PipelineConfig()
+    timings = {} if timings is None else timings
     t0 = time.perf_counter()
-    graphs = build_scene_graph(src_map, cfg.graph), build_scene_graph(ref_map, cfg.graph)
-    if timings is not None:
-        _add(timings, "graph", t0)
+    (src_up, src_level), (ref_up, ref_level) = level_map(src_map, cfg.level), level_map(ref_map, cfg.level)
+    _add(timings, "level", t0)
+    t0 = time.perf_counter()
+    graphs = build_scene_graph(src_up, cfg.graph), build_scene_graph(ref_up, cfg.graph)
+    _add(timings, "graph", t0)
+    graphs[0].level, graphs[1].level = src_level, ref_level
     return graphs

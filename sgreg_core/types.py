@@ -6,8 +6,12 @@ build and inspect them without knowing anything about how they are computed.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:    # maps/level.py imports this module
+    from .maps.level import Levelling
 
 
 @dataclass
@@ -40,6 +44,9 @@ class SceneGraph:
     points:     n arrays (k_i, 3) float32, the voxel-downsampled node point clouds P_i.
     edges:      (m, 2) int64 undirected edges (i < j), indices into the node arrays.
     structural: (n,) bool, True for floor / wall / ceiling-like nodes.
+    level:      how the map was levelled before the graph was built (maps/level.Levelling:
+                centers and points are in the levelled frame, p = level.R p_map); None: the
+                map's own frame.
     """
 
     node_ids: np.ndarray
@@ -50,6 +57,7 @@ class SceneGraph:
     points: list[np.ndarray]
     edges: np.ndarray
     structural: np.ndarray
+    level: Levelling | None = None
 
     @property
     def num_nodes(self) -> int:

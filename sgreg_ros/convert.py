@@ -126,6 +126,8 @@ def coarse_to_msg(g: GraphMessage, encoding: int) -> CoarseGraph:
     msg.header.frame_id = f"{g.agent_id}/map"
     msg.agent_id, msg.sequence, msg.map_sequence = g.agent_id, int(g.sequence), int(g.map_sequence)
     msg.weights_id = g.weights_id
+    q = Rotation.from_matrix(np.asarray(g.level, np.float64)).as_quat()   # x, y, z, w
+    msg.level.x, msg.level.y, msg.level.z, msg.level.w = (float(v) for v in q)
     msg.node_ids = array.array("I", np.asarray(g.nodes.node_ids, np.uint32).tobytes())
     msg.centers = array.array("f", np.asarray(g.nodes.centers, "<f4").tobytes())
     msg.extents = array.array("f", np.asarray(g.extents, "<f4").tobytes())
@@ -150,7 +152,23 @@ def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
                         stamp=stamp_to_sec(msg.header.stamp),
                         nodes=NodeFeatures(node_ids=np.asarray(msg.node_ids, np.int64),
                                            centers=_f32(msg.centers, n, "centers"), descriptor=x),
-                        extents=_f32(msg.extents, n, "extents"))
+                        extents=_f32(msg.extents, n, "extents"), level=_level(msg.level))
+
+
+MAX_LEVEL_TILT_DEG = 30.0
+
+
+def _level(q) -> np.ndarray:
+    """The sender's levelling rotation from its quaternion: a unit quaternion that tilts by at
+    most MAX_LEVEL_TILT_DEG (levelling never turns a map about z, and a map is never on its
+    side)."""
+    v = np.array([q.x, q.y, q.z, q.w], np.float64)
+    if not np.isfinite(v).all() or abs(np.linalg.norm(v) - 1.0) > 1e-3:
+        raise ConversionError(f"level is not a unit quaternion: {v.tolist()}")
+    R = Rotation.from_quat(v).as_matrix()
+    if np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))) > MAX_LEVEL_TILT_DEG:
+        raise ConversionError(f"level tilts the map by more than {MAX_LEVEL_TILT_DEG:g} deg")
+    return R
 
 
 def dense_to_msg(g: GraphMessage, encoding: int) -> DenseGraph:

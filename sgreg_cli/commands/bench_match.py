@@ -1,8 +1,9 @@
 """`sgreg bench-match [--weights W ...]`: node / point matching quality and stage timings.
 
 Pairs come from the validation room only (never trained on): partial views of each capture
-and views of one capture against the other (rescans), yaw uniform in [-180, 180), once clean
-and once with every kind of front-end noise. Several weight files (the shipped model and its
+and views of one capture against the other (rescans), yaw uniform in [-180, 180): clean, noisy
+(jitter, split, dropped and partial instances, paraphrases) and frontend (all of those plus
+wrong classes, merged and invented instances and per-map tilt; bench.cases.VIEW_NOISE). Several weight files (the shipped model and its
 ablations: no triplets, no shape feature, early fusion, each trained with
 `sgreg train --set ...`) are compared on the same pairs in one run.
 
@@ -65,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from sgreg_core.config import apply_overrides, to_dict
+    from sgreg_core.bench.cases import VIEW_NOISE
     from sgreg_core.net.dataset import DataConfig, PairSource, augment
     from sgreg_core.net.evaluate import evaluate_pairs, summarize
     from sgreg_core.net.model import DEFAULT_WEIGHTS, load_model
@@ -93,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     base = DataConfig(scans_dir=args.scans_dir, scan_prefix=args.scan_prefix, rescan_gt=args.rescan_gt, val_room=args.val_room,
                       val_pairs=args.pairs, cache_dir=args.cache_dir)
     conditions = {"clean": dataclasses.replace(base, noise_prob=0.0),
-                  "noisy": dataclasses.replace(base, noise_prob=1.0)}
+                  "noisy": dataclasses.replace(base, noise_prob=1.0, noise=VIEW_NOISE["noisy"]),
+                  "frontend": dataclasses.replace(base, noise_prob=1.0, noise=VIEW_NOISE["frontend"])}
     pairs = {}
     try:
         for cond, cfg in conditions.items():

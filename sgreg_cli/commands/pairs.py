@@ -1,5 +1,8 @@
 """`sgreg pairs SCAN_DIR OUT_DIR --n K --seed S [--overlap F] [--noise ...]`: cut K registration
-pairs with ground truth from one instance map into OUT_DIR/pair_000, pair_001, ..."""
+pairs with ground truth from one instance map into OUT_DIR/pair_000, pair_001, ...
+
+--noise "confuse,merge=0.2,tilt=1.5,jitter" turns front-end errors on (NoiseConfig.preset);
+every kind at once is "confuse,merge,invent,tilt,jitter,overseg,drop,paraphrase,partial"."""
 from __future__ import annotations
 
 import argparse
@@ -18,7 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--overlap", type=float, default=0.5, help="fraction of points both views cover")
     parser.add_argument("--disjoint", choices=["band", "halves"], default="band")
-    parser.add_argument("--noise", default="", help="comma list of jitter,overseg,drop,paraphrase,partial")
+    parser.add_argument(
+        "--noise", default="",
+        help="front-end errors, comma list of NAME (its preset rate) or NAME=RATE: confuse (0.15, "
+             "wrong class), merge (0.1, fused with a neighbour), invent (0.1, invented instances "
+             "per instance), tilt (2.0, largest gravity tilt of a view, deg), jitter (0.01 m), "
+             "overseg (0.1), drop (0.1), paraphrase (0.3), partial (0.2); see "
+             "sgreg_core/simulation/noise.py")
 
 
 def run(args: argparse.Namespace) -> int:

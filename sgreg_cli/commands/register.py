@@ -139,13 +139,16 @@ def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms, ar
           f"fitness {reg.fitness:.3f} (on the reference footprint {reg.footprint_fitness:.3f}), "
           f"ambiguity {reg.evidence.ambiguity:.2f}, confidence {reg.confidence:.2f}, "
           f"{reg.timing_ms['total']:.0f} ms (+ {startup_ms:.0f} ms loading the model)")
+    if reg.levelling:
+        print("levelled: " + ", ".join(f"{k} tilted {v['tilt_deg']:.2f} deg" + ("" if v["ok"] else
+                                       f" (left as it is: {v['reason']})") for k, v in reg.levelling.items()))
     if args.png:
         from sgreg_core.plots.registration import plot_registration
 
         lookup = [{int(i): k for k, i in enumerate(g.node_ids)} for g in (src_graph, ref_graph)]
         si = [lookup[0][int(i)] for i in reg.node_pairs[:, 0]]
         ri = [lookup[1][int(i)] for i in reg.node_pairs[:, 1]]
-        plot_registration(node_cloud(src_graph), node_cloud(ref_graph), reg.T, args.png,
+        plot_registration(node_cloud(src_graph), node_cloud(ref_graph), reg.T_levelled, args.png,
                           src_graph.centers[si], ref_graph.centers[ri],
                           title=f"{verdict}: {reg.node_matches} node matches, "
                                 f"{reg.inliers} inliers")

@@ -18,7 +18,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rooms", type=int, default=1)
     parser.add_argument("--kind", choices=["apartment", "office"], default="apartment")
-    parser.add_argument("--noise", default="", help="comma list of jitter,overseg,drop,paraphrase,partial")
+    parser.add_argument(
+        "--noise", default="",
+        help="front-end errors, comma list of NAME or NAME=RATE: confuse, merge, invent, jitter, "
+             "overseg, drop, paraphrase, partial (tilt only tilts registration pairs); see "
+             "sgreg pairs --help")
     parser.add_argument("--png", action="store_true", help="also draw OUT_DIR/graph.png")
 
 

@@ -2,8 +2,13 @@
 
 Settings:
     clean / noisy      two partial views of one capture of a tested room that share no point
-                       sample (pairs.make_pair), yaw uniform in [-180, 180); noisy adds every
-                       front-end imperfection of NoiseConfig's presets to each view.
+                       sample (pairs.make_pair), yaw uniform in [-180, 180); noisy adds the
+                       geometric front-end imperfections (jitter, split, dropped and partial
+                       instances, paraphrased labels) to each view.
+    tilt               clean views, each tilted on its own by 0.5-2 deg (gravity from VIO).
+    frontend           what a real mapping front end makes, all at once (NoiseConfig.FRONTEND):
+                       the noisy errors plus wrong but plausible classes, merged and invented
+                       instances and per-map tilt.
     rescan             one capture of a room against another capture of it (pseudo ground truth
                        from rescan_gt.json, accepted entries only), the source moved by a random
                        4-DoF transform per seed: held-out rooms in both directions with
@@ -35,8 +40,12 @@ from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, make_pair, node_iou
 from ..types import InstanceMap
 
-SETTINGS = ("clean", "noisy", "rescan", "different_rooms")
-NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
+SETTINGS = ("clean", "noisy", "tilt", "frontend", "rescan", "different_rooms")
+# the noise of each view setting (NoiseConfig.preset names)
+VIEW_NOISE = {"clean": "", "noisy": "jitter,overseg,drop,paraphrase,partial", "tilt": "tilt",
+              "frontend": NoiseConfig.FRONTEND}
+# seed index of each setting: settings added later draw their own cases, the others keep theirs
+_SEED = {"clean": 0, "noisy": 1, "rescan": 2, "different_rooms": 3, "tilt": 4, "frontend": 5}
 
 
 @dataclass
@@ -56,7 +65,6 @@ class CaseConfig:
                          training range of the shipped model).
     halves_prob:         probability that the views split every point (half density each)
                          instead of the shared band only (see pairs.PairConfig.disjoint).
-    noise:               NoiseConfig presets of the noisy setting.
     max_translation:     m, horizontal translation of the random transforms.
     iou_voxel:           m, voxel of the ground-truth node IoU.
     seed:                seed of every random choice."""
@@ -72,7 +80,6 @@ class CaseConfig:
     rescan_seen_seeds: int = 1
     overlap: tuple[float, float] = (0.3, 0.8)
     halves_prob: float = 0.3
-    noise: str = NOISE_ALL
     max_translation: float = 10.0
     iou_voxel: float = 0.1
     seed: int = 0
@@ -123,20 +130,20 @@ def _moved(imap: InstanceMap, T: np.ndarray) -> InstanceMap:
                        colors=imap.colors)
 
 
-def _pair_config(cfg: CaseConfig, rng: np.random.Generator, noisy: bool) -> PairConfig:
+def _pair_config(cfg: CaseConfig, rng: np.random.Generator, noise: str = "") -> PairConfig:
     return PairConfig(overlap=float(rng.uniform(*cfg.overlap)),
                       disjoint="halves" if rng.random() < cfg.halves_prob else "band",
                       max_translation=cfg.max_translation, iou_voxel=cfg.iou_voxel,
-                      noise=NoiseConfig.preset(cfg.noise) if noisy else NoiseConfig())
+                      noise=NoiseConfig.preset(noise))
 
 
 def _view_cases(cfg: CaseConfig, scans: list[str], setting: str) -> list[Case]:
-    noisy = setting == "noisy"
     out = []
     for k in range(cfg.n):
-        rng = np.random.default_rng([cfg.seed, SETTINGS.index(setting), k])
+        rng = np.random.default_rng([cfg.seed, _SEED[setting], k])
         scan = scans[k % len(scans)]
-        pair = make_pair(_scan(str(resolve(cfg.scans_dir) / scan)), _pair_config(cfg, rng, noisy), rng)
+        pair = make_pair(_scan(str(resolve(cfg.scans_dir) / scan)),
+                         _pair_config(cfg, rng, VIEW_NOISE[setting]), rng)
         out.append(Case(setting, f"{scan}#{k}", pair.src, pair.ref, pair.T_src_ref,
                         pair.gt_node_pairs, pair.gt_iou, _room(scan) in cfg.held_out_rooms))
     return out
@@ -170,7 +177,7 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
         pairs, iou = _gt_nodes(src0, ref, T_ab, cfg.iou_voxel)
         held_out = _room(a) in cfg.held_out_rooms
         for s in range(cfg.rescan_seeds if held_out else cfg.rescan_seen_seeds):
-            rng = np.random.default_rng([cfg.seed, SETTINGS.index("rescan"), d, s])
+            rng = np.random.default_rng([cfg.seed, _SEED["rescan"], d, s])
             A = _random_4dof(rng, cfg.max_translation)
             out.append(Case("rescan", f"{a}->{b}#{s}", _moved(src0, A), ref,
                             T_ab @ invert_transform(A), pairs, iou, held_out))
@@ -180,11 +187,11 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
 def _different_room_cases(cfg: CaseConfig, tested: list[str], others: list[str]) -> list[Case]:
     out = []
     for k in range(cfg.n if others else 0):
-        rng = np.random.default_rng([cfg.seed, SETTINGS.index("different_rooms"), k])
+        rng = np.random.default_rng([cfg.seed, _SEED["different_rooms"], k])
         a, b = tested[k % len(tested)], others[k % len(others)]
         root = resolve(cfg.scans_dir)
-        view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng, False), rng).src
-        ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng, False), rng).ref
+        view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng), rng).src
+        ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng), rng).ref
         out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,
                         held_out=_room(a) in cfg.held_out_rooms))
     return out
@@ -203,7 +210,7 @@ def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[C
     for setting in SETTINGS:
         if setting not in settings:
             continue
-        if setting in ("clean", "noisy"):
+        if setting in VIEW_NOISE:
             cases += _view_cases(cfg, tested, setting)
         elif setting == "rescan":
             cases += _rescan_cases(cfg, set(scans))

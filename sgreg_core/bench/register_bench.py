@@ -32,7 +32,7 @@ from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, regis
                        rre, rte)
 from ..pose import ReferenceCloud
 from ..pipeline import (PipelineConfig, Registration, build_graphs, node_cloud, register_features,
-                        register_graphs)
+                        register_graphs, to_map_frames)
 from .cases import SETTINGS, Case, CaseConfig
 
 SGREG_METHODS = ("sgreg_dense", "sgreg_coarse")
@@ -135,7 +135,8 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
         reference = ReferenceCloud(node_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         prep_ms = 1e3 * (time.perf_counter() - t0)
         cpu0 = time.process_time()
-        reg = register_features(model, src, ref, node_cloud(src_graph), reference, coarse)
+        reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, coarse),
+                            src_graph.level, ref_graph.level)
         rows.append(_sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg)
                     | {"ms_map_prep": prep_ms})
     return rows

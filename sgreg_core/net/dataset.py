@@ -37,10 +37,9 @@ from ..maps.instance_map import labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
+from ..maps.level import LevelConfig, level_map
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
-
-NOISE_ALL = "jitter,overseg,drop,paraphrase,partial"
 
 
 @dataclass
@@ -55,10 +54,13 @@ class DataConfig:
     synth_scenes:     distinct synthetic scenes (seeds 0..n-1), 1-2 rooms each.
     overlap:          overlap of two views, uniform in this range.
     halves_prob:      probability that views split every point (half density) rather than the band.
-    noise_prob:       probability that a pair gets front-end noise (NoiseConfig.preset, all kinds).
+    noise_prob:       probability that a pair gets front-end noise.
+    noise:            the NoiseConfig.preset names of that noise (default every kind a front end
+                      makes: wrong classes, merged and invented objects, tilt, jitter, ...).
     min_matches:      a pair needs this many gt node matches at IoU >= iou_store, else re-cut.
     iou_store:        gt node pairs kept down to this IoU (the losses pick their own threshold).
-    cache_dir:        root of the pair cache; a hash of this config names the sub-directory."""
+    cache_dir:        root of the pair cache; a hash of this config names the sub-directory.
+    level:            each view is levelled before its graph is built, as in the pipeline."""
 
     scans_dir: str = SCANS
     scan_prefix: str = "scannet-picwoon_"
@@ -71,9 +73,11 @@ class DataConfig:
     overlap: tuple[float, float] = (0.3, 0.8)
     halves_prob: float = 0.3
     noise_prob: float = 0.5
+    noise: str = NoiseConfig.FRONTEND
     min_matches: int = 3
     iou_store: float = 0.1
     cache_dir: str = "runs/cache/pairs"
+    level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
 
 
@@ -102,13 +106,18 @@ def _node_index(graph: SceneGraph, ids: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def graph_pair_from_registration(pair: RegistrationPair, graph_cfg: GraphConfig,
-                                 source: str = "") -> GraphPair:
-    """Scene graphs of both views; gt instance-id pairs become node-index pairs."""
-    src, ref = build_scene_graph(pair.src, graph_cfg), build_scene_graph(pair.ref, graph_cfg)
+                                 source: str = "", level_cfg: LevelConfig | None = None) -> GraphPair:
+    """Scene graphs of both views, each levelled first as the pipeline levels maps (so tilted
+    views train the network on what it will see); gt instance-id pairs become node-index
+    pairs, and T_src_ref maps the levelled source graph onto the levelled reference graph."""
+    (src_map, src_level), (ref_map, ref_level) = (level_map(pair.src, level_cfg),
+                                                  level_map(pair.ref, level_cfg))
+    src, ref = build_scene_graph(src_map, graph_cfg), build_scene_graph(ref_map, graph_cfg)
+    T = ref_level.T @ np.asarray(pair.T_src_ref, np.float64) @ invert_transform(src_level.T)
     si, s_ok = _node_index(src, pair.gt_node_pairs[:, 0])
     ri, r_ok = _node_index(ref, pair.gt_node_pairs[:, 1])
     keep = s_ok & r_ok
-    return GraphPair(src=src, ref=ref, T_src_ref=np.asarray(pair.T_src_ref, np.float64),
+    return GraphPair(src=src, ref=ref, T_src_ref=T,
                      gt=np.stack([si[keep], ri[keep]], 1).astype(np.int64),
                      gt_iou=pair.gt_iou[keep].astype(np.float32), source=source)
 
@@ -118,7 +127,9 @@ def _rescan_pair(a: InstanceMap, b: InstanceMap, T_ab: np.ndarray, cfg: PairConf
     """A view of capture a (moved at random) against a view of capture b, gt from T_ab."""
     view_a, view_b = make_pair(a, cfg, rng), make_pair(b, cfg, rng)
     src, ref = view_a.src, view_b.ref
-    T = T_ab @ view_a.T_src_ref  # src view -> frame of a -> frame of b (= the ref view's frame)
+    # src view -> a's ref view (a tilted by its ref tilt) -> a -> b -> b's ref view (b tilted)
+    tilt_a, tilt_b = (np.asarray(v.meta.get("ref_tilt", np.eye(4)), np.float64) for v in (view_a, view_b))
+    T = tilt_b @ T_ab @ invert_transform(tilt_a) @ view_a.T_src_ref
     ms, mr = labelled_mask(src), labelled_mask(ref)
     pairs, iou = node_iou(transform_points(T, src.points[ms]), src.instance[ms],
                           ref.points[mr], ref.instance[mr], cfg.iou_voxel)
@@ -208,7 +219,7 @@ class PairSource:
                 overlap=float(rng.uniform(*cfg.overlap)),
                 disjoint="halves" if rng.random() < cfg.halves_prob else "band",
                 iou_store=cfg.iou_store,
-                noise=NoiseConfig.preset(NOISE_ALL) if rng.random() < cfg.noise_prob else NoiseConfig())
+                noise=NoiseConfig.preset(cfg.noise) if rng.random() < cfg.noise_prob else NoiseConfig())
             if kind == "rescan":
                 a, b, T_ab = self.rescans[int(rng.integers(len(self.rescans)))]
                 reg = _rescan_pair(self._scan(a), self._scan(b), T_ab, pair_cfg, rng)
@@ -219,7 +230,7 @@ class PairSource:
             else:
                 seed = int(rng.integers(cfg.synth_scenes))
                 reg, name = make_pair(_synth_scene(seed), pair_cfg, rng), f"synth:{seed}"
-            pair = graph_pair_from_registration(reg, cfg.graph, name)
+            pair = graph_pair_from_registration(reg, cfg.graph, name, cfg.level)
             if len(pair.gt) >= cfg.min_matches and min(pair.src.num_nodes, pair.ref.num_nodes) >= 3:
                 return pair
         raise RuntimeError(f"could not cut a {self.split} pair {index} with {cfg.min_matches} matches")

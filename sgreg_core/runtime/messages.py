@@ -8,7 +8,7 @@ with what the link decided about it.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,10 +29,12 @@ class GraphMessage:
     """A CoarseGraph, or the content of a DenseGraph when `points` is set.
 
     nodes:           node ids, centers (n, 3) and descriptors (n, d) float32 (decoded from the
-                     wire encoding), sender's map frame; no points, valid or z (a receiver
-                     computes those from `points`).
+                     wire encoding), sender's levelled map frame; no points, valid or z (a
+                     receiver computes those from `points`).
     extents:         (n, 3) float32 box extents.
-    points:          (P, 3) float32 node points (dense only), sender's map frame.
+    points:          (P, 3) float32 node points (dense only), sender's levelled map frame.
+    level:           (3, 3) rotation the sender levelled its map with (p_levelled = level
+                     p_map; maps/level.py), the identity when it did not.
     point_node:      (P,) index into the node arrays of each point (dense only).
     requester, request_sequence: the request a dense message answers.
     """
@@ -48,6 +50,7 @@ class GraphMessage:
     point_node: np.ndarray | None = None
     requester: str = ""
     request_sequence: int = 0
+    level: np.ndarray = field(default_factory=lambda: np.eye(3))
 
     @property
     def num_nodes(self) -> int:

@@ -4,7 +4,9 @@ reason instead of an exception.
 
 For each peer: coarse graphs arrive at ~1 Hz -> an estimate from node centers (merged with the
 point correspondences kept from the link's last dense estimate) and, when enough nodes match
-and the minimum interval has passed, a dense request. A dense answer -> point matching -> a
+and the minimum interval has passed, a dense request. Before the peer's points are at hand a
+coarse estimate cannot be verified: when a request goes out for it, the dense answer answers
+the query and no coarse result is published (counter deferred_to_dense). A dense answer -> point matching -> a
 dense estimate. Every estimate runs the one pipeline of pipeline.py (same code and verdict as
 `sgreg register` and the benchmarks), with the peer's graph as source and the agent's own as
 reference, so verification checks the peer's sampled points against the agent's full cloud.
@@ -40,7 +42,8 @@ from ..config import param
 from ..geometry import invert_transform
 from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
-from ..pipeline import Correspondences, PipelineConfig, Registration, register_features
+from ..maps.level import Levelling
+from ..pipeline import Correspondences, PipelineConfig, Registration, register_features, to_map_frames
 from .agent import AgentCore
 from .messages import DenseRequestMessage, Estimate, GraphMessage
 
@@ -245,9 +248,13 @@ class Peers:
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
                                 self._coarse_cfg, timings, kept=kept)
         link.coarse_data = (self.agent.digest, msg.digest)
-        estimate = self._judge(link, reg, msg.digest, timings, t0)
         request = self._maybe_request(link, reg, now)
-        return estimate, request
+        if link.dense_cloud is None and request is not None:
+            # Nothing to verify this estimate against: the dense answer to the request answers
+            # this query (the paper's coarse-to-fine step), instead of a result bound to fail.
+            self._count("deferred_to_dense")
+            return None, request
+        return self._judge(link, reg, msg.digest, timings, t0), request
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
@@ -316,10 +323,6 @@ class Peers:
             self.log(f"peer {peer} silent for {self.cfg.peer_timeout_s:g} s: forgotten")
         return gone
 
-    def _dummy(self):
-        out = []
-        return out
-
     # ---- validation ----------------------------------------------------------------------
     def _accept(self, msg: GraphMessage, stream: str, now: float) -> PeerLink | None:
         """The peer's link if the message is usable; else None, with a counter and a log line."""
@@ -377,6 +380,10 @@ class Peers:
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
         if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
             return "bad_nodes", "extents do not match the nodes, or a node id repeats"
+        level = np.asarray(msg.level)
+        if level.shape != (3, 3) or not np.isfinite(level).all() \
+                or not np.allclose(level @ level.T, np.eye(3), atol=1e-4):
+            return "bad_level", "the levelling is not a rotation"
         arrays = [desc, centers, msg.extents] + ([msg.points] if msg.points is not None else [])
         if not all(np.isfinite(a).all() for a in arrays):
             return "invalid_values", "NaN or inf in features, centers, extents or points"
@@ -430,6 +437,9 @@ class Peers:
         """The estimate as published: the verdict of the pipeline, then the link's rules."""
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         self._count(f"estimates_{reg.mode}")
+        peer_msg = dense if dense is not None else link.coarse
+        # estimated between the levelled graphs, published between the maps as they are
+        to_map_frames(reg, Levelling.from_rotation(peer_msg.level), self.agent.level)
         T = invert_transform(reg.T)          # the pipeline maps peer -> own; publish own -> peer
         if reg.mode == "coarse" and reg.node_matches < self.cfg.min_coarse_matches:
             reason = "too_few_matches"
@@ -446,7 +456,6 @@ class Peers:
             reason = self._link_rules(link, reg, hyp)
         if reason != "ok":
             self._count(reason)
-        peer_msg = dense if dense is not None else link.coarse
         est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
                        link=link.state, registration=reg, stamp=max(self.agent.stamp, peer_msg.stamp),
                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,

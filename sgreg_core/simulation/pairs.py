@@ -4,7 +4,9 @@ Public API:
     PairConfig                  overlap, how views avoid sharing samples, transform ranges, IoU
     RegistrationPair            src, ref (InstanceMap), T_src_ref (4x4: src points -> ref frame),
                                 gt_node_pairs (m, 2) int64 (src id, ref id), gt_iou (m,) float32,
-                                meta dict; .matches(min_iou=0.3) -> the pairs at/above min_iou
+                                meta dict (with "src_tilt_deg" / "ref_tilt_deg" and the 4x4
+                                "src_tilt" / "ref_tilt" applied to each view in the common
+                                frame); .matches(min_iou=0.3) -> the pairs at/above min_iou
     make_pair(imap, cfg, rng) -> RegistrationPair
     node_iou(src_points, src_inst, ref_points, ref_inst, voxel) -> (pairs (m, 2), iou (m,))
         IoU of voxel occupancy of every overlapping (src instance, ref instance), common frame
@@ -19,8 +21,11 @@ the (0.5 - overlap / 2) quantile, so the shared band holds `overlap` of the poin
 sample may be in both views: with disjoint="band" each band point goes to one view at random
 (views keep full density outside the band), with disjoint="halves" every point is first given
 to one random half (uniform half density everywhere). Noise is then applied to each view on
-its own, ids are renumbered at random (disjoint sets), and the source view is moved by a
-random 4-DoF transform; T_src_ref undoes it.
+its own, ids are renumbered at random (disjoint sets) and the ground-truth node pairs are found
+in the common frame. With tilt noise each view is then tilted on its own about its centroid
+(src1 = S src0, ref1 = R ref0: each front end has its own gravity error), and the source view
+is moved by a random 4-DoF transform A (src2 = A^-1 src1); T_src_ref = R S^-1 A maps the final
+source onto the final reference.
 """
 from __future__ import annotations
 
@@ -35,7 +40,7 @@ from scipy.spatial import cKDTree
 from ..geometry import invert_transform, pack_keys, transform_points, voxel_coords, yaw_transform
 from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map, select_points, write_instance_map
 from ..types import InstanceMap
-from .noise import NoiseConfig, apply_noise
+from .noise import NoiseConfig, apply_noise, tilt_about, tilt_transform
 
 
 @dataclass
@@ -127,11 +132,17 @@ def _renumber(imap: InstanceMap, new_ids: np.ndarray) -> InstanceMap:
     )
 
 
+def _tilt_deg(T: np.ndarray) -> float:
+    """Angle between the tilted and the true z axis, in degrees."""
+    return float(np.degrees(np.arccos(np.clip(T[2, 2], -1.0, 1.0))))
+
+
 def make_pair(imap: InstanceMap, cfg: PairConfig | None = None, rng: np.random.Generator | None = None) -> RegistrationPair:
     """Cut two overlapping views of `imap` with ground truth (see the module docstring)."""
     cfg = cfg or PairConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
     in_a, in_b = _cut_views(imap, cfg, rng)
+    tilt_rng = np.random.default_rng(rng.integers(2**63))  # its own stream, drawn with or without tilt
     views = []
     for m, name in ((in_a, "source"), (in_b, "reference")):
         view = apply_noise(select_points(imap, m), cfg.noise, rng)
@@ -146,13 +157,18 @@ def make_pair(imap: InstanceMap, cfg: PairConfig | None = None, rng: np.random.G
     pairs, iou = node_iou(src.points[ms], src.instance[ms], ref.points[mr], ref.instance[mr], cfg.iou_voxel)
     keep = iou >= cfg.iou_store
 
+    S, R = (tilt_about(v.points.mean(axis=0, dtype=np.float64), tilt_transform(cfg.noise, tilt_rng)) for v in (src, ref))
     yaw = np.radians(rng.uniform(-cfg.max_yaw_deg, cfg.max_yaw_deg))
     r, phi = cfg.max_translation * np.sqrt(rng.random()), rng.uniform(0, 2 * np.pi)
     t = [r * np.cos(phi), r * np.sin(phi), rng.uniform(-cfg.max_z_translation, cfg.max_z_translation)]
-    T_src_ref = yaw_transform(yaw, t)
-    src.points = transform_points(invert_transform(T_src_ref), src.points).astype(np.float32)
+    A = yaw_transform(yaw, t)
+    src.points = transform_points(invert_transform(A) @ S, src.points).astype(np.float32)
+    ref.points = transform_points(R, ref.points).astype(np.float32)
+    T_src_ref = R @ invert_transform(S) @ A
     meta = {"overlap": cfg.overlap, "disjoint": cfg.disjoint, "noise": asdict(cfg.noise),
-            "src_points": int(len(src.points)), "ref_points": int(len(ref.points))}
+            "src_points": int(len(src.points)), "ref_points": int(len(ref.points)),
+            "src_tilt_deg": _tilt_deg(S), "ref_tilt_deg": _tilt_deg(R),
+            "src_tilt": S.tolist(), "ref_tilt": R.tolist()}
     return RegistrationPair(src=src, ref=ref, T_src_ref=T_src_ref, gt_node_pairs=pairs[keep],
                             gt_iou=iou[keep], meta=meta)
 

@@ -29,7 +29,7 @@ def setup(tmp_path, monkeypatch):
     torch.set_num_threads(before)
 
 
-def test_bench_match_compares_models_on_clean_and_noisy_pairs(setup, capsys):
+def test_bench_match_compares_models_on_clean_noisy_and_frontend_pairs(setup, capsys):
     tmp_path, scans, paths = setup
     out = tmp_path / "results" / "bench.json"
     code = cli.main(["bench-match", "--weights", *paths, "--pairs", "2", "--scans-dir", str(scans),
@@ -39,10 +39,10 @@ def test_bench_match_compares_models_on_clean_and_noisy_pairs(setup, capsys):
                      "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "late" in printed and "notriplets" in printed and "noisy" in printed
+    assert "late" in printed and "notriplets" in printed and "noisy" in printed and "frontend" in printed
     results = json.loads(out.read_text())["results"]
     assert [(r["model"], r["condition"]) for r in results] == [
-        ("late", "clean"), ("late", "noisy"), ("notriplets", "clean"), ("notriplets", "noisy")]
+        (m, c) for m in ("late", "notriplets") for c in ("clean", "noisy", "frontend")]
     for r in results:
         assert r["summary"]["pairs"] == 2 and len(r["pairs"]) == 2
         for key in ("node_recall", "node_precision", "inlier_ratio", "ms_gnn", "ms_shape",

@@ -136,7 +136,7 @@ def test_bench_register_schema(tmp_path, capsys):
     assert config["config"]["cases"]["n"] == 2 and config["weights_id"] == results["weights_id"]
     assert (out / "recall.png").stat().st_size > 10_000
     summary = results["summary"]
-    assert set(summary) == {"clean", "noisy", "different_rooms"}
+    assert set(summary) == {"clean", "noisy", "tilt", "frontend", "different_rooms"}
     for group, by_method in summary.items():
         assert set(by_method) == {"sgreg_dense", "sgreg_coarse", "kiss_matcher"}
         for method, s in by_method.items():
@@ -148,7 +148,7 @@ def test_bench_register_schema(tmp_path, capsys):
                 for key in ("node_recall", "node_precision", "inlier_ratio",
                             "pseudo_inlier_ratio", "stage_ms_median", "reasons"):
                     assert key in s
-    assert len(results["rows"]) == 3 * 2 * 3
+    assert len(results["rows"]) == 5 * 2 * 3      # settings x cases x methods
     for row in results["rows"]:
         assert {"setting", "case", "method", "claimed", "success", "false_claim", "rmse",
                 "time_ms"} <= set(row)

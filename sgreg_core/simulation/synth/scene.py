@@ -12,7 +12,7 @@ labels from the NYU40 names the scans carry mixed with open-set names.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -404,6 +404,6 @@ def generate_scene(seed: int, cfg: SynthConfig | None = None) -> InstanceMap:
         scores={int(ids[k]): 1.0 for k in np.flatnonzero(labelled & present)},
         colors=np.clip(colors, 0, 255).astype(np.uint8),
     )
-    if any(getattr(cfg.noise, f) > 0 for f in ("jitter", "overseg", "drop", "paraphrase", "partial")):
+    if replace(cfg.noise, tilt=0.0) != NoiseConfig():   # tilt moves points: pairs apply it
         imap = apply_noise(imap, cfg.noise, rng)
     return imap
