@@ -55,27 +55,42 @@ if ! stamp_ok requirements "$req_hash"; then
   stamp_set requirements "$req_hash"
 fi
 
-# --- 3. sgreg_msgs, built with rosidl into the venv prefix --------------------------
-msg_hash=$({ echo "$req_hash"; find "$ROOT/msg_schemas" -type f | sort | xargs cat; } | sha256sum | cut -c1-16)
-if ! stamp_ok msgs "$msg_hash" || ! "$VENV/bin/python" -c "import sgreg_msgs.msg" 2>/dev/null; then
-  say "building msg_schemas/ (sgreg_msgs) with rosidl"
-  build="$ROOT/build/msg_schemas"
+# --- 3. interface packages, built with rosidl into the venv prefix ---------------------
+# build_interfaces NAME DIR: configure, build and install one ament_cmake interface package
+# against the wheels (their CMake exports need fix_wheel_include_dirs.cmake).
+build_interfaces() {
+  local name=$1 src=$2 build="$ROOT/build/$1"
   rm -rf "$build"; mkdir -p "$build"
+  local py_inc np_inc
   py_inc=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   np_inc=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
   (
     cd "$build"
     export AMENT_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
-    cmake "$ROOT/msg_schemas" \
+    cmake "$src" \
       -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_PREFIX_PATH="$VENV" \
       -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF \
       -DCMAKE_PROJECT_INCLUDE="$ROOT/msg_schemas/cmake/fix_wheel_include_dirs.cmake" \
       -DSGREG_PYTHON_INCLUDE="$py_inc" -DSGREG_NUMPY_INCLUDE="$np_inc" > cmake.log 2>&1 \
       || { tail -n 40 cmake.log; exit 1; }
     make -j"$(nproc)" install > make.log 2>&1 || { tail -n 40 make.log; exit 1; }
-  ) || die "building sgreg_msgs failed (logs in $build)"
-  "$VENV/bin/python" -c "import sgreg_msgs.msg" || die "sgreg_msgs built but does not import"
+  ) || die "building $name failed (logs in $build)"
+  "$VENV/bin/python" -c "import $name.msg" || die "$name built but does not import"
+}
+
+msg_hash=$({ echo "$req_hash"; find "$ROOT/msg_schemas" -path "$ROOT/msg_schemas/fallback" -prune -o -type f -print | sort | xargs cat; } | sha256sum | cut -c1-16)
+if ! stamp_ok msgs "$msg_hash" || ! "$VENV/bin/python" -c "import sgreg_msgs.msg" 2>/dev/null; then
+  say "building msg_schemas/ (sgreg_msgs) with rosidl"
+  build_interfaces sgreg_msgs "$ROOT/msg_schemas"
   stamp_set msgs "$msg_hash"
+fi
+# /tf needs tf2_msgs, which no wheel provides: build the upstream TFMessage where it is missing
+tf_hash=$({ echo "$req_hash"; find "$ROOT/msg_schemas/fallback/tf2_msgs" -type f | sort | xargs cat; } | sha256sum | cut -c1-16)
+if ! "$VENV/bin/python" -c "import tf2_msgs.msg" 2>/dev/null \
+    || { [ -f "$STAMPS/tf2_msgs" ] && ! stamp_ok tf2_msgs "$tf_hash"; }; then
+  say "building tf2_msgs (TFMessage; no wheel provides it) with rosidl"
+  build_interfaces tf2_msgs "$ROOT/msg_schemas/fallback/tf2_msgs"
+  stamp_set tf2_msgs "$tf_hash"
 fi
 
 # --- 4. this package (sgreg_core + sgreg_ros), editable --------------------------------
@@ -90,11 +105,14 @@ fi
 # --- 5. ament index entries: what `ros2 run sgreg_ros <exe>` looks for ------------------
 # pip does not install setup.py's data_files, so write them into the venv prefix here.
 index="$VENV/share/ament_index/resource_index/packages"
-mkdir -p "$index" "$VENV/share/sgreg_ros/config" "$VENV/share/sgreg_ros/launch" "$VENV/lib/sgreg_ros"
+mkdir -p "$index" "$VENV/lib/sgreg_ros"
+for d in config launch rviz foxglove; do mkdir -p "$VENV/share/sgreg_ros/$d"; done
 : > "$index/sgreg_ros"
 cp "$ROOT/package.xml" "$VENV/share/sgreg_ros/package.xml"
 cp "$ROOT"/config/*.yaml "$VENV/share/sgreg_ros/config/"
 cp "$ROOT"/launch/*.py "$VENV/share/sgreg_ros/launch/"
+cp "$ROOT"/rviz/*.rviz "$VENV/share/sgreg_ros/rviz/"
+cp "$ROOT"/foxglove/*.json "$VENV/share/sgreg_ros/foxglove/"
 for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))"); do
   cat > "$VENV/lib/sgreg_ros/$exe" <<SH
 #!/bin/sh

@@ -3,8 +3,10 @@
 
 Input: `sgreg bench-replay --backend offline` result folders run with a permissive verdict (every
 estimate judged, none refused, no confirmation; see docs/VERDICT.md for the command), so that
-every estimate carries its full evidence. Bags of held-out rooms are left out: thresholds are
-chosen on rooms seen in training and on synthetic scenes only.
+every estimate carries its full evidence, and optionally `sgreg bench-register` result folders
+of rooms seen in training (--register DIR: pairs with every front-end error, each estimate
+with its evidence whatever the verdict). Held-out rooms are left out: thresholds are chosen on
+rooms seen in training and on synthetic scenes only.
 
 For dense and coarse/merged estimates separately it prints how right and wrong estimates spread
 over each piece of evidence, then, over a grid of thresholds, how many wrong estimates each
@@ -13,7 +15,8 @@ setting would still accept and how many right ones it would refuse, the shipped 
 weights). Last it fits the logistic confidence (pose/verdict.py `confidence`) on every estimate
 and prints its weights.
 
-    python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--held-out scene0005]
+    python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--register DIR ...]
+                                     [--held-out scene0005]
 """
 from __future__ import annotations
 
@@ -44,6 +47,23 @@ def load_frames(dirs: list[str], held_out: list[str]) -> list[dict]:
                                   for k in FEATURES},
                                "confidence": float(f.get("confidence", np.nan)),
                                "mode": f["mode"], "correct": bool(f["correct"]), "bag": path.stem})
+    return frames
+
+
+def load_register_rows(dirs: list[str], held_out: list[str]) -> list[dict]:
+    """sgreg rows of bench-register results, rooms seen in training only; right = RMSE under
+    the benchmark's threshold (different rooms: never right)."""
+    frames = []
+    for d in dirs:
+        for r in json.loads(Path(d, "results.json").read_text())["rows"]:
+            ev = r.get("evidence")
+            if not r["method"].startswith("sgreg") or not ev or r.get("held_out") \
+                    or any(room in r["case"] for room in held_out) or r["reason"] in ("too_few_nodes", "no_node_matches"):
+                continue
+            frames.append({**{k: float(ev.get(k) if ev.get(k) is not None else np.nan) for k in FEATURES},
+                           "confidence": float(r.get("confidence", np.nan)),
+                           "mode": "dense" if r["method"] == "sgreg_dense" else "coarse",
+                           "correct": bool(r["success"]), "bag": f"{d}:{r['setting']}"})
     return frames
 
 
@@ -106,9 +126,10 @@ def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("dirs", nargs="+")
+    p.add_argument("--register", nargs="*", default=[], help="bench-register result folders")
     p.add_argument("--held-out", nargs="*", default=["scene0005"])
     args = p.parse_args()
-    frames = load_frames(args.dirs, args.held_out)
+    frames = load_frames(args.dirs, args.held_out) + load_register_rows(args.register, args.held_out)
     print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
           f"(held-out rooms {args.held_out} left out)")
     shipped = PipelineConfig()

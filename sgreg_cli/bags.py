@@ -215,3 +215,36 @@ def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
     finally:
         reader.close()
     return out
+
+
+def final_maps(path: str | Path, gt: dict | None = None) -> dict:
+    """agent -> the points (N, 3) of its last instance map in the bag (its map frame)."""
+    origin = (gt or {}).get("t_origin", 0.0)
+    last = {}
+    for _, agent, imap in instance_maps_in_bag(path, origin):
+        last[agent] = imap.points
+    return last
+
+
+def tf_in_bag(path: str | Path) -> dict:
+    """child frame -> (parent frame, 4x4) of the last /tf transforms recorded in a bag (empty
+    when it recorded none)."""
+    from tf2_msgs.msg import TFMessage
+
+    from sgreg_ros.convert import transform_from_msg
+
+    reader = open_bag(path)
+    out = {}
+    try:
+        conns = [c for c in reader.connections if c.topic == "/tf"]
+        # (no connections would mean every message to rosbags)
+        for _, _, raw in reader.messages(connections=conns) if conns else ():
+            try:
+                msg = deserialize_message(bytes(raw), TFMessage)
+            except Exception:
+                continue
+            for t in msg.transforms:
+                out[t.child_frame_id] = (t.header.frame_id, transform_from_msg(t))
+    finally:
+        reader.close()
+    return out

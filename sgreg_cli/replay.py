@@ -1,6 +1,7 @@
-"""`sgreg replay`: start every agent's nodes as separate processes, play a two-agent bag into
-them, collect every published estimate, the traffic between agents, and the nodes' CPU and
-memory. Scoring is sgreg_core.bench.replay_score."""
+"""`sgreg replay`: start every agent's nodes as separate processes, play a bag of two or more
+agents into them, collect every published estimate, the merged frame the agents publish on
+/tf, the traffic between agents, and the nodes' CPU and memory. Scoring is
+sgreg_core.bench.replay_score and merge_score."""
 from __future__ import annotations
 
 import json
@@ -14,12 +15,13 @@ import psutil
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from sgreg_msgs.msg import RegistrationResult
+from tf2_msgs.msg import TFMessage
 
 from sgreg_core.bench.bandwidth import BandwidthMeter
 from sgreg_core.bench.replay_score import ResultRecord
 from sgreg_core.runtime.auth import init_keystore
 from sgreg_ros.convert import transform_from_msg
-from sgreg_ros.qos import RESULTS
+from sgreg_ros.qos import RESULTS, TF
 
 from . import processes
 from .bags import BagError, message_class, open_bag, play_bag, qos_for
@@ -61,6 +63,7 @@ class ReplayRun:
     timeline: list   # (t, topic, bytes) of cross-agent traffic
     events: list     # (t, what) e.g. a restart
     bag_end_s: float = 0.0   # when the last message was played (t of the timeline)
+    tf: dict = field(default_factory=dict)   # child frame -> (parent frame, 4x4), last on /tf
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -141,7 +144,16 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                                     confidence=float(msg.confidence),
                                     evidence={"objects": int(msg.inlier_objects),
                                               "fitness": float(msg.fitness),
-                                              "ambiguity": float(msg.ambiguity)}))
+                                              "ambiguity": float(msg.ambiguity)},
+                                    link=msg.link))
+
+    tf: dict = {}
+
+    def on_tf(msg: TFMessage):
+        for t in msg.transforms:
+            tf[t.child_frame_id] = (t.header.frame_id, transform_from_msg(t))
+
+    node.create_subscription(TFMessage, "/tf", on_tf, TF)
 
     def on_bytes(topic, raw):
         t = time.monotonic() - t0
@@ -227,7 +239,7 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
-                     timeline=timeline, events=events, bag_end_s=bag_end)
+                     timeline=timeline, events=events, bag_end_s=bag_end, tf=tf)
 
 
 def ground_truth_of(bag: str | Path) -> dict:

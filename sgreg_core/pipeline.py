@@ -32,7 +32,9 @@ Public API:
                                    "level" and "graph" stages)
     to_map_frames(reg, src_level, ref_level)   T between levelled frames -> between the maps
     register_features(model, src_feats, ref_feats, src_cloud, ref_cloud, cfg, timings, kept)
-    node_cloud(graph) -> (N, 3)    all node points of a graph (the verification cloud)
+    node_cloud(graph) -> (N, 3)    all node points of a graph (what a dense message carries)
+    reference_cloud(graph) -> (N, 3)   every point of the graph's map, labelled or not (what a
+                                   pose is verified against; the node points when unknown)
     warm_up(model)                 load the text encoder now, so that no timing includes it
     TIMING_STAGES                  the keys of Registration.timing_ms, in pipeline order
 """
@@ -211,6 +213,11 @@ class Registration:
     def correspondences(self) -> int:
         return len(self.corr)
 
+    def inlier_node_pairs(self) -> np.ndarray:
+        """(k, 2) int64 the node matches (src id, ref id) with at least one inlier."""
+        pairs = self.corr.pairs[self.inlier_mask] if len(self.corr) else np.zeros((0, 2), np.int64)
+        return np.unique(pairs, axis=0) if len(pairs) else np.zeros((0, 2), np.int64)
+
     def inlier_corr(self) -> Correspondences:
         """The correspondences the estimate explains (what a runtime keeps for merging)."""
         return self.corr.subset(self.inlier_mask)
@@ -251,6 +258,13 @@ def node_cloud(graph: SceneGraph) -> np.ndarray:
     if graph.num_nodes == 0:
         return np.zeros((0, 3), np.float32)
     return np.concatenate(graph.points).astype(np.float32, copy=False)
+
+
+def reference_cloud(graph: SceneGraph) -> np.ndarray:
+    """What a pose onto this graph is verified against: every point of its map, labelled or
+    not. Verification is geometry: an object the front end dropped, merged or mislabelled is
+    still a surface, and a right pose of the other map's points lands on it."""
+    return graph.map_points if graph.map_points is not None else node_cloud(graph)
 
 
 def warm_up(model: SGRegModel) -> None:
@@ -342,7 +356,7 @@ def register_graphs(model: SGRegModel, src_graph: SceneGraph, ref_graph: SceneGr
     dense = cfg.mode == "dense"
     src = model.encode(src_graph, dense=dense, timings=timings)
     ref = model.encode(ref_graph, dense=dense, timings=timings)
-    out = register_features(model, src, ref, node_cloud(src_graph), node_cloud(ref_graph), cfg,
+    out = register_features(model, src, ref, node_cloud(src_graph), reference_cloud(ref_graph), cfg,
                             timings)
     to_map_frames(out, src_graph.level, ref_graph.level)
     timings["total"] = (timings.get("level", 0.0) + timings.get("graph", 0.0)
@@ -377,4 +391,5 @@ def build_graphs(src_map: InstanceMap, ref_map: InstanceMap, cfg: PipelineConfig
     graphs = build_scene_graph(src_up, cfg.graph), build_scene_graph(ref_up, cfg.graph)
     _add(timings, "graph", t0)
     graphs[0].level, graphs[1].level = src_level, ref_level
+    graphs[0].map_points, graphs[1].map_points = src_up.points, ref_up.points
     return graphs

@@ -47,6 +47,9 @@ class SceneGraph:
     level:      how the map was levelled before the graph was built (maps/level.Levelling:
                 centers and points are in the levelled frame, p = level.R p_map); None: the
                 map's own frame.
+    map_points: (N, 3) float32 every point of the map the graph was built from, labelled or
+                not, in the graph's frame (what a pose is verified against); None: only the
+                node points are known.
     """
 
     node_ids: np.ndarray
@@ -58,6 +61,7 @@ class SceneGraph:
     edges: np.ndarray
     structural: np.ndarray
     level: Levelling | None = None
+    map_points: np.ndarray | None = None
 
     @property
     def num_nodes(self) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import array
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -14,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
+from tf2_msgs.msg import TFMessage
 
 from sgreg_core.net.model import NodeFeatures
 from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMessage
@@ -235,6 +237,16 @@ def transform_msg(T: np.ndarray, agent_id: str, peer_id: str, stamp: float) -> T
     return t
 
 
+def tf_msg(poses: dict, merged_frame: str, stamp: float) -> TFMessage:
+    """/tf: one transform per attached agent, merged_frame -> <id>/map (p_merged = T p_map)."""
+    msg = TFMessage()
+    for agent, T in sorted(poses.items()):
+        t = transform_msg(T, agent, "", stamp)
+        t.header.frame_id = merged_frame
+        msg.transforms.append(t)
+    return msg
+
+
 def transform_from_msg(t: TransformStamped) -> np.ndarray:
     T = np.eye(4)
     r = t.transform.rotation
@@ -260,11 +272,43 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     msg.fitness = float(ev.fitness) if np.isfinite(ev.fitness) else 0.0
     msg.peer_coarse_sequence, msg.peer_dense_sequence = (
         int(e.peer_coarse_sequence), int(e.peer_dense_sequence))
+    pairs = e.registration.inlier_node_pairs()[:, ::-1]     # (peer, own) -> (agent, peer)
+    msg.inlier_node_pairs = array.array("I", np.ascontiguousarray(pairs, np.uint32).tobytes())
     msg.timing_names = list(e.timing_ms)
     msg.timing_ms = [float(v) for v in e.timing_ms.values()]
     msg.counter_names = list(counters)
     msg.counter_values = [int(v) for v in counters.values()]
     return msg
+
+
+@dataclass
+class Result:
+    """What the merger takes from a RegistrationResult of any agent."""
+
+    agent: str
+    peer: str
+    T: np.ndarray            # T_agent^peer
+    verified: bool
+    reason: str
+    link: str
+    confidence: float
+    stamp: float
+    node_pairs: np.ndarray   # (k, 2) (agent node id, peer node id)
+
+
+@decoder
+def result_from_msg(msg: RegistrationResult) -> Result:
+    if not msg.agent_id or not msg.peer_id or msg.agent_id == msg.peer_id:
+        raise ConversionError(f"result of {msg.agent_id!r} for {msg.peer_id!r}")
+    T = transform_from_msg(msg.transform)
+    if not np.isfinite(T).all() or not np.isfinite(msg.confidence):
+        raise ConversionError("NaN or inf in the transform or the confidence")
+    pairs = np.asarray(msg.inlier_node_pairs, np.int64)
+    if pairs.size % 2:
+        raise ConversionError("inlier_node_pairs holds an odd number of ids")
+    return Result(msg.agent_id, msg.peer_id, T, bool(msg.verified), msg.reason, msg.link,
+                  float(np.clip(msg.confidence, 0.0, 1.0)), stamp_to_sec(msg.header.stamp),
+                  pairs.reshape(-1, 2))
 
 
 def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,

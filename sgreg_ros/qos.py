@@ -12,6 +12,9 @@
 - sgreg/transform, sgreg/registration: reliable, depth 10, volatile.
 - /diagnostics: reliable, depth 10, volatile, like diagnostic_updater's, so that
   rqt_robot_monitor, the diagnostic aggregator and Foxglove all match it.
+- /tf: reliable, depth 100, volatile, as tf2_ros's TransformBroadcaster (RViz, tf2 listeners).
+- sgreg/markers, sgreg/merged_cloud: reliable, depth 1, transient local: a viewer that opens
+  late gets the last picture at once.
 """
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -29,3 +32,5 @@ DENSE_REQUEST = _qos(10)
 DENSE = _qos(2)
 RESULTS = _qos(10)
 DIAGNOSTICS = _qos(10)
+TF = _qos(100)
+VIEW = _qos(1, transient=True)

@@ -3,10 +3,16 @@
 Builds its own graph from mapping/instances, listens to the coarse and dense graphs of its peers
 (the `peers` parameter, or every /<x>/sgreg/coarse it discovers), asks them for dense data, and
 publishes every estimate T_<agent>^<peer> on sgreg/registration and the verified ones on
-sgreg/transform, stamped with the time of the newer of the two maps. All decisions live in
-sgreg_core.runtime.peers.Peers; its parameters are declared from the configs (PeersConfig,
-AgentConfig, GraphConfig, the verdict's min_fitness and min_confidence, HealthConfig and
-RegistrationNodeConfig below)."""
+sgreg/transform, stamped with the time of the newer of the two maps.
+
+It is also the agent's merger: it hears every agent's sgreg/registration, keeps the links that
+the cycles agree on, and publishes every attached agent's map in one merged frame on /tf
+(`<merged_frame>` -> `<id>/map`; every agent given the same links publishes the same tree), and
+stops asking peers that are already placed for dense data (runtime/merge.py).
+
+All decisions live in sgreg_core.runtime.peers.Peers and runtime.merge.Merger; the parameters
+are declared from the configs (PeersConfig, AgentConfig, GraphConfig, the verdict's min_fitness
+and min_confidence, MergeConfig, HealthConfig and RegistrationNodeConfig below)."""
 from __future__ import annotations
 
 import re
@@ -14,7 +20,10 @@ import time
 from dataclasses import dataclass, replace
 
 from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
+from tf2_msgs.msg import TFMessage
 
 from sgreg_core.config import param
 from sgreg_core.maps.scene_graph import GraphConfig
@@ -22,9 +31,11 @@ from sgreg_core.pose.verdict import VerdictConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
 from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.health import HealthConfig
+from sgreg_core.runtime.merge import MergeConfig, Merger
 from sgreg_core.runtime.peers import Peers, PeersConfig
+from sgreg_core.runtime import views
 
-from . import convert, qos
+from . import convert, markers, qos
 from .node_base import SgregNode
 from .params import params_of, pick
 
@@ -40,12 +51,19 @@ class RegistrationNodeConfig:
     discovery_period_s: float = param(2.0, "how often to look for new peers", 0.1, 60.0, live=True)
     max_message_mb: float = param(32.0, "bigger peer messages are refused before they are decoded",
                                   0.1, 1024.0, live=True)
+    merge_period_s: float = param(1.0, "how often the merged frame is recomputed and sent on /tf",
+                                  0.1, 60.0)
+    view_period_s: float = param(2.0, "how often sgreg/markers (graph, node matches) go out; 0: never",
+                                 0.0, 600.0)
+    cloud_period_s: float = param(5.0, "how often sgreg/merged_cloud goes out; 0: never", 0.0, 600.0)
+    cloud_voxel: float = param(0.15, "voxel of the merged cloud (m)", 0.02, 2.0)
 
 
 # the agent's own map is refused or kept as the agent node does; it answers no requests and
 # sends no coarse graphs
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
-                   HealthConfig, AuthConfig, skip=("dense_min_interval_s", "heartbeat_period_s"))
+                   MergeConfig, HealthConfig, AuthConfig,
+                   skip=("dense_min_interval_s", "heartbeat_period_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
 
@@ -67,6 +85,9 @@ class RegistrationNode(SgregNode):
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
+            self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
+            self.tf_pub = self.create_publisher(TFMessage, "/tf", qos.TF)
+            self.result_subs: dict[str, object] = {}
             self.transform_pub = self.create_publisher(TransformStamped, self.topic("sgreg/transform"), qos.RESULTS)
             self.result_pub = self.create_publisher(RegistrationResult, self.topic("sgreg/registration"),
                                                     qos.RESULTS)
@@ -77,6 +98,14 @@ class RegistrationNode(SgregNode):
             if not self.fixed_peers:
                 self.discovery_timer = self.create_timer(p["discovery_period_s"], self.discover_peers)
             self.create_timer(0.2, self.on_tick)
+            self.create_timer(p["merge_period_s"], self.on_merge)
+            self.matches: dict[str, object] = {}     # peer -> inlier node pairs of its last verified estimate
+            if p["view_period_s"] > 0:
+                self.marker_pub = self.create_publisher(MarkerArray, self.topic("sgreg/markers"), qos.VIEW)
+                self.create_timer(p["view_period_s"], self.publish_markers)
+            if p["cloud_period_s"] > 0:
+                self.cloud_pub = self.create_publisher(PointCloud2, self.topic("sgreg/merged_cloud"), qos.VIEW)
+                self.create_timer(p["cloud_period_s"], self.publish_cloud)
             self.get_logger().info(f"registration for '{self.name}' up, peers: "
                                    f"{self.fixed_peers or 'discovered'}, weights {self.agent.weights_id}")
         self.accept_live_parameters()
@@ -116,7 +145,9 @@ class RegistrationNode(SgregNode):
             self.create_subscription(CoarseGraph, f"/{peer}/sgreg/coarse", lambda raw: self.on_coarse(raw, peer),
                                      qos.COARSE_SUB, raw=True),
             self.create_subscription(DenseGraph, f"/{peer}/sgreg/dense", lambda raw: self.on_dense(raw, peer),
-                                     qos.DENSE, raw=True)]
+                                     qos.DENSE, raw=True),
+            self.create_subscription(RegistrationResult, f"/{peer}/sgreg/registration",
+                                     lambda raw: self.on_result(raw, peer), qos.RESULTS, raw=True)]
         self.get_logger().info(f"listening to peer '{peer}'")
 
     def drop_peer(self, peer: str) -> None:
@@ -145,6 +176,41 @@ class RegistrationNode(SgregNode):
         if graph is not None:
             self.guarded(f"dense graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish(self.peers.on_dense(graph, time.monotonic())))
+
+    def on_result(self, raw: bytes, peer: str) -> None:
+        """A peer's registration result: its links, for the merger."""
+        if len(raw) > self.p["max_message_mb"] * 1e6:
+            self.refusal(self.agent.refuse("oversized_message", f"result on /{peer}'s topic refused "
+                                           "(max_message_mb)"))
+            return
+        try:
+            msg = convert.decode(raw, RegistrationResult)
+            result = convert.result_from_msg(msg)
+        except convert.ConversionError as exc:
+            self.refusal(self.agent.refuse("malformed_message", f"malformed result refused: {exc}"),
+                         key=f"malformed result {peer}")
+            return
+        refused = "agent_mismatch" if result.agent != peer else \
+            self.auth.check(msg, f"/{peer}/sgreg/registration", peer)
+        if refused:
+            self.refusal(self.agent.refuse(refused, f"result {msg.sequence} on /{peer}'s topic "
+                                           f"(agent_id {result.agent!r}) refused: {refused}"),
+                         key=f"{refused} result {peer}")
+            return
+        self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
+                         result.link, result.confidence, result.stamp)
+
+    def on_merge(self) -> None:
+        """Merge every agent's links; /tf gets the attached agents' maps in the merged frame."""
+        for line in self.merger.update(self.now()):
+            self.get_logger().info(line)
+        self.peers.attached = self.merger.settled_peers()
+        self.peers.disputed = self.merger.disputed_peers()
+        result = self.merger.result
+        self.agent.counters["agents_attached"] = len(result.attached)
+        self.agent.counters["links_rejected"] = len(result.rejected)
+        if len(result.attached) > 1:
+            self.tf_pub.publish(convert.tf_msg(result.poses, self.merger.cfg.merged_frame, self.now()))
 
     def on_tick(self) -> None:
         now = time.monotonic()
@@ -200,10 +266,49 @@ class RegistrationNode(SgregNode):
         if estimate is None:
             return
         self.result_seq += 1
-        self.result_pub.publish(convert.result_to_msg(estimate, self.name, self.result_seq, estimate.stamp,
-                                                      dict(self.peers.counters)))
+        msg = convert.result_to_msg(estimate, self.name, self.result_seq, estimate.stamp,
+                                    dict(self.peers.counters))
+        self.result_pub.publish(self.auth.sign(msg, self.topic("sgreg/registration")))
+        self.merger.take(self.name, estimate.peer_id, estimate.T, estimate.verified, estimate.reason,
+                         estimate.link, estimate.confidence, estimate.stamp)
+        if estimate.verified:
+            self.matches[estimate.peer_id] = estimate.registration.inlier_node_pairs()[:, ::-1]
         if estimate.verified:
             self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, estimate.stamp))
+
+    # ---- views ---------------------------------------------------------------------------
+    def publish_markers(self) -> None:
+        """The own scene graph (in <id>/map) and, in the merged frame, the node matches of every
+        verified link whose two ends it places."""
+        if not self.agent.ready:
+            return
+        stamp = self.get_clock().now().to_msg()
+        out = markers.graph_markers(views.graph_view(self.agent.graph), f"{self.name}/map", stamp)
+        poses, frame = self.merger.result.poses, self.merger.cfg.merged_frame
+        own = views.centers_in_map(self.agent.graph.node_ids, self.agent.graph.centers, self.agent.level)
+        for k, (peer, pairs) in enumerate(sorted(self.matches.items())):
+            link = self.peers.links.get(peer)
+            if link is None or link.coarse is None or self.name not in poses or peer not in poses:
+                continue
+            theirs = views.centers_in_map(link.coarse.nodes.node_ids, link.coarse.nodes.centers,
+                                          link.coarse.level)
+            lines = views.match_lines(own, theirs, pairs, poses[self.name], poses[peer])
+            out.append(markers.match_marker(lines, peer, frame, stamp, views.agent_rgb(k) / 255.0))
+        self.marker_pub.publish(markers.markers_msg(out))
+
+    def publish_cloud(self) -> None:
+        """Every map this agent knows of in the merged frame: its own, and the points of each
+        placed peer's last dense answer."""
+        poses = self.merger.result.poses
+        if not self.agent.ready or self.name not in poses:
+            return
+        clouds = {self.name: views.points_in_map(self.agent.own_cloud(), self.agent.level)}
+        for peer, link in self.peers.links.items():
+            if link.dense is not None and link.dense_cloud is not None and peer in poses:
+                clouds[peer] = views.points_in_map(link.dense_cloud, link.dense.level)
+        pts, rgb = views.merged_cloud(clouds, poses, self.p["cloud_voxel"])
+        self.cloud_pub.publish(markers.cloud_msg(pts, rgb, self.merger.cfg.merged_frame,
+                                                 self.get_clock().now().to_msg()))
 
     # ---- diagnostics ---------------------------------------------------------------------
     def counters(self) -> dict:
@@ -215,5 +320,8 @@ class RegistrationNode(SgregNode):
     def summary(self) -> str:
         if self.peers is None:
             return ""
-        return ", ".join(f"{p}: {'registered' if link.confirmed else 'not registered'}"
-                         for p, link in self.peers.links.items()) or "no peers yet"
+        links = ", ".join(f"{p}: {'registered' if link.confirmed else 'not registered'}"
+                          for p, link in self.peers.links.items()) or "no peers yet"
+        merged = self.merger.result
+        return f"{links}; {len(merged.attached)} agents in {self.merger.cfg.merged_frame}" \
+            + (f", {len(merged.rejected)} links rejected" if merged.rejected else "")

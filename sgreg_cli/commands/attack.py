@@ -31,7 +31,7 @@ def run(args) -> int:
     from sgreg_msgs.msg import CoarseGraph, InstanceMap
 
     from sgreg_core.runtime.auth import init_keystore
-    from sgreg_core.simulation.two_agents import overlapping_views
+    from sgreg_core.simulation.walks import overlapping_views
     from sgreg_ros import qos
     from sgreg_ros.convert import instance_map_to_msg
 

@@ -1,5 +1,6 @@
-"""sgreg make-bag SCAN_DIR --out bags/NAME: two agents walk through a scan; their growing instance
-maps and the ground truth go into a rosbag2 directory (MCAP) plus ground_truth.json.
+"""sgreg make-bag SCAN_DIR --out bags/NAME: agents walk through a scan (two by default, --agents N);
+their growing instance maps and the ground truth go into a rosbag2 directory (MCAP) plus
+ground_truth.json.
 
 With --scan-b and --gt, agent b walks another capture of the same room (moved into a's frame by
 the pseudo ground truth of rescan_gt.json): furniture moved, coverage different. The knobs
@@ -12,7 +13,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 NAME = "make-bag"
-HELP = "simulate two agents in a scan and write a rosbag2 (MCAP)"
+HELP = "simulate agents walking in a scan and write a rosbag2 (MCAP)"
 GT_TOPIC = "/sgreg/ground_truth"
 T_ORIGIN = 1_700_000_000.0  # bag time origin (s): bag stamp = T_ORIGIN + simulation time
 
@@ -23,6 +24,7 @@ class BagSpec:
 
     scan / scan_b: instance-map directories; scan_b (optional) is the capture b walks, and then
         gt names the pseudo ground truth (rescan_gt.json) that relates it to scan.
+    agents: how many agents walk (a, b, c, ...; the third on walk paths of their own).
     opposite: b walks a's path backwards (else its own path).
     speed (m/s), range (m), fov (deg): walk and sensor; range_b / fov_b: b's sensor when it
     differs (None: as a's); mapping_period: s between snapshots;
@@ -37,6 +39,7 @@ class BagSpec:
     scan_b: str | None = None
     gt: str | None = None
     seed: int = 0
+    agents: int = 2
     opposite: bool = True
     speed: float = 0.5
     range: float = 4.0
@@ -63,6 +66,8 @@ def add_arguments(p):
     p.add_argument("--scan-b", help="another capture of the same room for agent b (needs --gt)")
     p.add_argument("--gt", help="pseudo ground truth between captures (rescan_gt.json)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--agents", type=int, default=2,
+                   help="how many agents walk (a, b, c, ...; from the third on, each on a path of its own)")
     p.add_argument("--same-direction", action="store_true",
                    help="b walks its own path (default: a's path in the opposite direction)")
     p.add_argument("--mapping-period", type=float, default=1.0, help="seconds between map snapshots")
@@ -122,7 +127,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from sgreg_core.geometry import transform_points
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
-    from sgreg_core.simulation.two_agents import TwoAgentConfig, level_transform, simulate
+    from sgreg_core.simulation.walks import WalkConfig, level_transform, simulate
     from sgreg_core.types import InstanceMap
 
     out = Path(out)
@@ -147,14 +152,14 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         T_b_capture = rescan_transform(spec.scan, spec.scan_b, spec.gt)
         scene_b = moved(scene_b, T_level @ T_b_capture)
     scene = moved(scene, T_level)
-    cfg = TwoAgentConfig(opposite=spec.opposite, mapping_period=spec.mapping_period,
-                         voxel=spec.voxel, start_b=spec.start_b,
-                         sensor=SensorConfig(max_range=spec.range, hfov_deg=spec.fov),
-                         sensor_b=SensorConfig(max_range=spec.range if spec.range_b is None else spec.range_b,
-                                               hfov_deg=spec.fov if spec.fov_b is None else spec.fov_b),
-                         trajectory=TrajectoryConfig(speed=spec.speed, clearance=spec.clearance,
-                                                     waypoints=spec.waypoints, start=spec.start_a,
-                                                     random_start=spec.random_start))
+    cfg = WalkConfig(agents=spec.agents, opposite=spec.opposite, mapping_period=spec.mapping_period,
+                     voxel=spec.voxel, start_b=spec.start_b,
+                     sensor=SensorConfig(max_range=spec.range, hfov_deg=spec.fov),
+                     sensor_b=SensorConfig(max_range=spec.range if spec.range_b is None else spec.range_b,
+                                           hfov_deg=spec.fov if spec.fov_b is None else spec.fov_b),
+                     trajectory=TrajectoryConfig(speed=spec.speed, clearance=spec.clearance,
+                                                 waypoints=spec.waypoints, start=spec.start_a,
+                                                 random_start=spec.random_start))
     try:
         sim = simulate(scene, np.random.default_rng(spec.seed), cfg, scene_b=scene_b,
                        progress=lambda f: log(f"agents simulated: {f:.0%}"))
@@ -162,15 +167,15 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         raise BagSpecError(f"{spec.scan}: {exc}") from None
     T = sim.T_a_b
     store = typestore()
-    events = [(t, agent.name, m) for agent in (sim.a, sim.b) for t, m in agent.snapshots]
+    events = [(t, agent.name, m) for agent in sim.agents for t, m in agent.snapshots]
     events.sort(key=lambda e: (e[0], e[1]))
-    seq = {"a": 0, "b": 0}
+    seq = {agent.name: 0 for agent in sim.agents}
     writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
     # zstd chunks inside the MCAP (rosbag2's "storage" compression): point clouds shrink ~2x
     writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     with writer as w:
         conns = {name: w.add_connection(f"/{name}/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=store)
-                 for name in ("a", "b")}
+                 for name in seq}
         gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store)
         for i, (t, name, imap) in enumerate(events):
             stamp = T_ORIGIN + t
@@ -183,23 +188,24 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                 log(f"writing: {i + 1}/{len(events)} messages")
     info = {
         "T_a_b": T.tolist(),
-        "description": "T_a_b maps points of a's map frame (a/map) into b's (b/map); also on "
+        "description": "T_scene_map: each agent's map frame (<id>/map) in the scene's frame, for "
+                       "every agent; T_a_b maps points of a's map frame into b's (b/map); also on "
                        f"{GT_TOPIC} (header.frame_id b/map, child_frame_id a/map). objects: per "
                        "agent, [t, ids] per snapshot (bag stamp = t_origin + t): the objects "
                        "its map holds, named by a's instance ids (b's from another capture "
                        "renamed by overlap under the pseudo ground truth)",
-        "T_scene_map": {r.name: r.T_scene_map.tolist() for r in (sim.a, sim.b)},
+        "T_scene_map": {r.name: r.T_scene_map.tolist() for r in sim.agents},
         "T_level": T_level.tolist(),
         "T_b_capture": T_b_capture.tolist(),
         "t_origin": T_ORIGIN,
         "objects": {r.name: [[t, ids] for (t, _), ids in zip(r.snapshots, r.objects)]
-                    for r in (sim.a, sim.b)},
+                    for r in sim.agents},
         "scan": str(spec.scan), "scan_b": spec.scan_b, "seed": spec.seed,
         "agents": {r.name: {"snapshots": len(r.snapshots), "duration_s": float(r.times[-1]),
                             "path_length_m": float(np.linalg.norm(np.diff(r.poses[:, :2], axis=0), axis=1).sum()),
                             "final_points": int(r.snapshots[-1][1].points.shape[0]) if r.snapshots else 0,
                             "final_instances": len(r.snapshots[-1][1].labels) if r.snapshots else 0}
-                   for r in (sim.a, sim.b)},
+                   for r in sim.agents},
         "config": asdict(spec),
     }
     (out / "ground_truth.json").write_text(json.dumps(info, indent=1) + "\n")
@@ -209,13 +215,13 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
 def run(args) -> int:
     try:
         spec = BagSpec(scan=args.scan, scan_b=args.scan_b, gt=args.gt, seed=args.seed,
-                       opposite=not args.same_direction, speed=args.speed, range=args.range,
+                       agents=args.agents, opposite=not args.same_direction, speed=args.speed, range=args.range,
                        fov=args.fov, range_b=args.range_b, fov_b=args.fov_b,
                        mapping_period=args.mapping_period, voxel=args.voxel,
                        clearance=args.clearance, waypoints=args.waypoints,
                        start_a=args.start_a, start_b=args.start_b,
                        random_start=args.random_start, level=not args.no_level)
-        print(f"simulating two agents in {args.scan} ...", file=sys.stderr, flush=True)
+        print(f"simulating {args.agents} agents in {args.scan} ...", file=sys.stderr, flush=True)
         info = make_bag(spec, args.out, log=lambda s: print(f"  {s}", file=sys.stderr, flush=True))
     except BagSpecError as exc:
         print(f"sgreg make-bag: {exc}", file=sys.stderr)

@@ -1,5 +1,7 @@
-"""sgreg replay BAG --json OUT [--png OUT]: replay a two-agent bag through real nodes (separate
-processes over DDS) and score every published estimate against the bag's ground truth."""
+"""sgreg replay BAG --json OUT [--png OUT]: replay a bag of two or more agents through real nodes
+(separate processes over DDS) and score every published estimate, and the merged frame the
+agents publish on /tf, against the bag's ground truth. --png also draws the merged map
+(<png>_merged.png: every agent's map, top-down, placed by its merged pose)."""
 from __future__ import annotations
 
 import json
@@ -7,13 +9,14 @@ import sys
 from pathlib import Path
 
 NAME = "replay"
-HELP = "replay a two-agent bag through real nodes and score every estimate"
+HELP = "replay a multi-agent bag through real nodes and score every estimate and the merged map"
 
 
 def add_arguments(p):
     p.add_argument("bag", help="rosbag2 directory made by sgreg make-bag (with ground_truth.json)")
     p.add_argument("--json", required=True, help="write the report here")
-    p.add_argument("--png", help="plot success, RTE and bandwidth over time")
+    p.add_argument("--png", help="plot success, RTE and bandwidth over time (and the merged map "
+                                 "beside it, *_merged.png)")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML for the nodes (default: config/sgreg.yaml)")
@@ -32,6 +35,8 @@ def run(args) -> int:
     from ..replay import ReplayConfig, ground_truth_of, run_replay
 
     from sgreg_core.bench.bandwidth import HEADER, format_table
+    from sgreg_core.bench.merge_score import merge_of_records, score_merge
+    from sgreg_core.runtime.merge import MergeConfig
     from sgreg_core.bench.replay_report import PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, replay_report
     from sgreg_core.bench.replay_score import ground_truth, score_replay
     from sgreg_core.metrics import rre, rte
@@ -60,8 +65,13 @@ def run(args) -> int:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
+    merged = merge_of_records(run_.records, list(gt["T_scene_map"]))
+    frame = MergeConfig().merged_frame
+    tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
+    merge = {**score_merge(merged, gt["T_scene_map"], tf_poses or None), "published_on_tf": bool(tf_poses)}
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
-                                                   "overrides": cfg.overrides}, settle_s=cfg.settle_s)
+                                                   "overrides": cfg.overrides}, settle_s=cfg.settle_s,
+                           merge=merge)
     kb_per_frame = report["kb_per_query_frame"]
     out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
 
@@ -79,6 +89,13 @@ def run(args) -> int:
         ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],
         ["coarse latency median / p90", _lat(score.coarse_latency_ms)],
         ["dense latency median / p90", _lat(score.dense_latency_ms)],
+    ] + [[f"merged frame ({merged.anchor}'s map)",
+          f"{merge['attached']} of {merge['agents']} agents attached, {merge['wrong_links_kept']} wrong links "
+          f"kept, {merge['links_rejected']} rejected; max pose error " +
+          (f"{merge['max_pose_error_m']:.3f} m / {merge['max_pose_error_deg']:.2f} deg"
+           if merge["max_pose_error_m"] is not None else "-")]
+    ] + [[f"link during the bag, agent {a}", f"{b / 1e3:.2f} kB/s"]
+         for a, b in report["during_bag"]["bytes_per_s"].items()
     ] + [[f"link after the bag, agent {a}", f"{b / 1e3:.2f} kB/s (static maps, {report['after_bag']['window_s']:.0f} s)"]
          for a, b in report["after_bag"]["bytes_per_s"].items()
          ] + [[f"node {k}", f"CPU {v['cpu_share']:.0%}, peak {v['peak_rss_mb']:.0f} MB"] for k, v in run_.processes.items()]
@@ -98,10 +115,19 @@ def run(args) -> int:
         print("\nno verified estimate was published")
     print(f"\nreport: {out_json}")
     if args.png:
+        from sgreg_core.plots.merged import plot_merged_map
         from sgreg_core.plots.replay import plot_replay
 
+        from ..bags import final_maps
+
         plot_replay(score, run_.timeline, args.png, title=f"replay of {Path(args.bag).name}")
-        print(f"plot: {args.png}")
+        merged_png = str(Path(args.png).with_name(Path(args.png).stem + "_merged.png"))
+        plot_merged_map(final_maps(args.bag, gt), tf_poses or merged.poses, merged_png,
+                        title=f"merged map of {Path(args.bag).name} ({frame}: {merged.anchor}/map)",
+                        note=(f"max pose error {merge['max_pose_error_m']:.2f} m / "
+                              f"{merge['max_pose_error_deg']:.1f} deg against the ground truth"
+                              if merge["max_pose_error_m"] is not None else ""))
+        print(f"plot: {args.png}, {merged_png}")
     return 0
 
 

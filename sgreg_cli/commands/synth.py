@@ -1,4 +1,5 @@
-"""`sgreg synth OUT_DIR --seed S [--rooms N] [--kind apartment|office] [--noise ...] [--png]`.
+"""`sgreg synth OUT_DIR --seed S [--rooms N] [--kind apartment|office|building] [--run K]
+[--noise ...] [--png]`.
 
 Writes one synthetic scene as an instance map directory and prints its statistics.
 """
@@ -16,8 +17,12 @@ HELP = "generate a synthetic indoor scene as an instance map directory"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", help="instance map directory to write")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rooms", type=int, default=1)
-    parser.add_argument("--kind", choices=["apartment", "office"], default="apartment")
+    parser.add_argument("--rooms", type=int, default=1,
+                        help="rooms (building: rooms along the corridor, besides it)")
+    parser.add_argument("--kind", choices=["apartment", "office", "building"], default="apartment",
+                        help="building: a floor of rooms on both sides of a corridor, in runs "
+                             "of identical rooms (offices, hotel rooms)")
+    parser.add_argument("--run", type=int, default=3, help="building: identical neighbouring rooms")
     parser.add_argument(
         "--noise", default="",
         help="front-end errors, comma list of NAME or NAME=RATE: confuse, merge, invent, jitter, "
@@ -34,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         noise = NoiseConfig.preset(args.noise)
-        cfg = SynthConfig(kind=args.kind, rooms=args.rooms, noise=noise)
+        cfg = SynthConfig(kind=args.kind, rooms=args.rooms, run=args.run, noise=noise)
         t0 = time.perf_counter()
         imap = generate_scene(args.seed, cfg)
         t_gen = time.perf_counter() - t0

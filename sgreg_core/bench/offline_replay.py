@@ -7,10 +7,15 @@ of the protocol's logic. `sgreg replay` (real nodes) remains the measurement tha
 What the ideal link leaves out: message latency and loss, CPU contention between nodes (a
 busy registration node skips coarse graphs that arrive while it computes), DDS discovery.
 
+Every agent also runs its merger (runtime/merge.py) on every agent's results, as the nodes do
+(each registration node hears every agent's sgreg/registration), which tells its Peers which
+peers need no more dense data.
+
 Public API:
     OfflineReplayConfig
-    offline_replay(maps, model, cfg) -> list[ResultRecord]
-        maps: (t, agent, InstanceMap) map snapshots in time order (t in bag seconds)
+    offline_replay(maps, model, cfg, log, merges=None) -> list[ResultRecord]
+        maps: (t, agent, InstanceMap) map snapshots in time order (t in bag seconds);
+        merges: a dict, filled with each agent's last MergeResult
 """
 from __future__ import annotations
 
@@ -22,6 +27,7 @@ import numpy as np
 from ..net.model import SGRegModel
 from ..runtime.agent import AgentConfig, AgentCore
 from ..runtime.messages import GraphMessage
+from ..runtime.merge import MergeConfig, Merger
 from ..runtime.peers import Peers, PeersConfig
 from ..runtime.wire import ENCODINGS, pack_features, unpack_features
 from ..types import InstanceMap
@@ -33,14 +39,15 @@ class OfflineReplayConfig:
     """coarse_period_s: seconds between two coarse graphs of one agent (each agent's timer
     starts at a seeded phase, as independent nodes do); tail_s: how long the agents go on
     after the last map; feature_encoding: what node descriptors lose on the wire; agent /
-    peers: the settings every agent runs (agent.name is set per agent); seed: the timer
-    phases."""
+    peers / merge: the settings every agent runs (agent.name is set per agent); seed: the
+    timer phases."""
 
     coarse_period_s: float = 1.0
     tail_s: float = 6.0
     feature_encoding: str = "float16"
     agent: AgentConfig = field(default_factory=AgentConfig)
     peers: PeersConfig = field(default_factory=PeersConfig)
+    merge: MergeConfig = field(default_factory=MergeConfig)
     seed: int = 0
 
 
@@ -54,7 +61,8 @@ def _over_the_wire(msg: GraphMessage, encoding: int) -> GraphMessage:
 
 
 def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel,
-                   cfg: OfflineReplayConfig | None = None, log=lambda s: None) -> list[ResultRecord]:
+                   cfg: OfflineReplayConfig | None = None, log=lambda s: None,
+                   merges: dict | None = None) -> list[ResultRecord]:
     """Every estimate every agent makes while the maps arrive, as replay records (t and bag_t
     both in bag seconds)."""
     cfg = cfg or OfflineReplayConfig()
@@ -62,6 +70,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
     names = sorted({name for _, name, _ in maps})
     agents = {n: AgentCore(AgentConfig(**{**cfg.agent.__dict__, "name": n}), model) for n in names}
     peers_of = {n: Peers(cfg.peers, agents[n], model, log=log) for n in names}
+    mergers = {n: Merger(cfg.merge, n) for n in names}
     map_seq = dict.fromkeys(names, 0)
     rng = np.random.default_rng(cfg.seed)
     end = (maps[-1][0] if maps else 0.0) + cfg.tail_s
@@ -74,12 +83,14 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
 
     def record(agent: str, est, now: float) -> None:
         if est is not None:
+            for m in mergers.values():       # every agent hears every agent's results
+                m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, now)
             records.append(ResultRecord(t=now, agent=agent, peer=est.peer_id, T=est.T,
                                         verified=est.verified, mode=est.mode, reason=est.reason,
                                         node_matches=est.node_matches, inliers=est.inliers,
                                         total_ms=float(est.timing_ms.get("total", 0.0)),
                                         confidence=est.confidence, bag_t=now,
-                                        evidence=est.evidence))
+                                        evidence=est.evidence, link=est.link))
 
     while events:
         now, kind, _, name, imap = heapq.heappop(events)
@@ -98,6 +109,10 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                     _deliver(req, agents, peers_of, name, encoding, now, record)
             continue
         heapq.heappush(events, (now + cfg.coarse_period_s, 1, 0, name, None))
+        for line in mergers[name].update(now):
+            log(f"{name}: {line}")
+        peers_of[name].attached = mergers[name].settled_peers()
+        peers_of[name].disputed = mergers[name].disputed_peers()
         for req in peers_of[name].on_tick(now):
             _deliver(req, agents, peers_of, name, encoding, now, record)
         if not agent.coarse_due(now):
@@ -110,6 +125,10 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             record(peer, est, now)
             if req is not None:
                 _deliver(req, agents, peers_of, peer, encoding, now, record)
+    if merges is not None:
+        for name, m in mergers.items():
+            m.update(end)
+            merges[name] = m.result
     return records
 
 

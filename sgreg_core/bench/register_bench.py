@@ -31,8 +31,8 @@ from .baselines import BASELINES, BaselineConfig
 from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success,
                        rre, rte)
 from ..pose import ReferenceCloud
-from ..pipeline import (PipelineConfig, Registration, build_graphs, node_cloud, register_features,
-                        register_graphs, to_map_frames)
+from ..pipeline import (PipelineConfig, Registration, build_graphs, node_cloud, reference_cloud,
+                        register_features, register_graphs, to_map_frames)
 from .cases import SETTINGS, Case, CaseConfig
 
 SGREG_METHODS = ("sgreg_dense", "sgreg_coarse")
@@ -114,6 +114,7 @@ def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
     row.update({f"ms_{k}": float(v) for k, v in reg.timing_ms.items()})
     row.update({f"ms_pose_{k}": float(v) for k, v in reg.pose_timing_ms.items()})
     row["refined"] = reg.refined
+    row["evidence"] = dict(vars(reg.evidence))     # what the verdict weighed (choose_verdict.py)
     return row
 
 
@@ -132,7 +133,7 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
         coarse = replace(cfg.pipeline, mode="coarse")
         t0 = time.perf_counter()
         pose = coarse.pose_config()
-        reference = ReferenceCloud(node_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
+        reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         prep_ms = 1e3 * (time.perf_counter() - t0)
         cpu0 = time.process_time()
         reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, coarse),

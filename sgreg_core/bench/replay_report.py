@@ -11,9 +11,11 @@ PAPER_SUCCESS_RATE = 0.324   # SG-Reg T-RO 2025, two-agent success rate (differe
 PAPER_KB_PER_FRAME = 52.0
 
 
-def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0) -> dict:
-    """The JSON report of one replay: the score (every frame, registrability, links) and, from a
-    replay through real nodes (run_), traffic, node load and played messages."""
+def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0,
+                  merge: dict | None = None) -> dict:
+    """The JSON report of one replay: the score (every frame, registrability, links), the merged
+    frame (bench/merge_score.py) and, from a replay through real nodes (run_), traffic (per
+    agent, during the bag and once the maps are static), node load and played messages."""
     report = {
         "bag": str(bag),
         "query_frames": score.query_frames,
@@ -32,6 +34,7 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
         "paper_kb_per_query_frame": PAPER_KB_PER_FRAME,
         "coarse_latency_ms": score.coarse_latency_ms,
         "dense_latency_ms": score.dense_latency_ms,
+        "merge": merge,
         "config": config or {},
         "frames": score.to_dict()["frames"],
     }
@@ -50,5 +53,9 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
             # the link once the maps stopped changing (after the bag and settle_s more)
             "after_bag": {"window_s": max(quiet[1] - quiet[0], 0.0),
                           "bytes_per_s": per_agent_rate(run_.timeline, *quiet) if quiet[1] > quiet[0] else {}},
+            # what each agent sends on its sgreg topics while the maps grow
+            "during_bag": {"window_s": run_.bag_end_s,
+                           "bytes_per_s": per_agent_rate(run_.timeline, 0.0, run_.bag_end_s)
+                           if run_.bag_end_s > 0 else {}},
         })
     return report

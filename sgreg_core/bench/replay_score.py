@@ -37,6 +37,7 @@ class ResultRecord:
     confidence: float = float("nan")
     bag_t: float | None = None   # bag time (s, the bag's simulation clock) the frame falls at
     evidence: dict = field(default_factory=dict)   # the verdict's evidence, as far as known
+    link: str = ""        # the link's state after the estimate (none, candidate, confirmed)
 
 
 @dataclass

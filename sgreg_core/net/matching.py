@@ -87,11 +87,31 @@ def log_optimal_transport(scores: torch.Tensor, valid_src: torch.Tensor, valid_r
     log_mu = torch.cat([norm.expand(-1, n_src).masked_fill(~valid_src, LOG_ZERO), count_ref.log() + norm], 1)
     log_nu = torch.cat([norm.expand(-1, n_ref).masked_fill(~valid_ref, LOG_ZERO), count_src.log() + norm], 1)
 
+    if not torch.is_grad_enabled():
+        return _sinkhorn_scaling(couplings, log_mu, log_nu, iters) - norm.unsqueeze(2)
     u, v = torch.zeros_like(log_mu), torch.zeros_like(log_nu)
     for _ in range(iters):
         u = log_mu - torch.logsumexp(couplings + v.unsqueeze(1), dim=2)
         v = log_nu - torch.logsumexp(couplings + u.unsqueeze(2), dim=1)
     return couplings + u.unsqueeze(2) + v.unsqueeze(1) - norm.unsqueeze(2)
+
+
+def _sinkhorn_scaling(couplings: torch.Tensor, log_mu: torch.Tensor, log_nu: torch.Tensor,
+                      iters: int) -> torch.Tensor:
+    """The same iterations as the log-domain loop, on scaling vectors a = e^u, b = e^v: two
+    batched mat-vecs per iteration instead of two logsumexps over the whole (B, K+1, K+1)
+    tensor (about 10x faster on a CPU). Without gradients only: the scores are bounded
+    (cosines times a learnt scale), and shifting each batch by its maximum keeps exp finite;
+    the shift cancels in a_i K_ij b_j."""
+    c = couplings - couplings.amax(dim=(1, 2), keepdim=True)
+    K = c.exp()
+    mu, nu = log_mu.exp(), log_nu.exp()
+    b = torch.ones_like(nu)
+    tiny = torch.finfo(K.dtype).tiny
+    for _ in range(iters):
+        a = mu / torch.bmm(K, b.unsqueeze(2)).squeeze(2).clamp_min(tiny)
+        b = nu / torch.bmm(K.transpose(1, 2), a.unsqueeze(2)).squeeze(2).clamp_min(tiny)
+    return c + a.clamp_min(tiny).log().unsqueeze(2) + b.clamp_min(tiny).log().unsqueeze(1)
 
 
 class NodeMatcher(nn.Module):

@@ -14,6 +14,7 @@ import numpy as np
 from ..config import param
 from ..maps.instance_map import validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
+from ..pipeline import reference_cloud
 from ..pose import PoseConfig, ReferenceCloud
 from ..maps.level import LevelConfig, Levelling, level_map
 from ..maps.scene_graph import GraphConfig, build_scene_graph
@@ -125,7 +126,7 @@ class AgentCore:
         timings["level"] = 1e3 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
         graph = build_scene_graph(imap, self.cfg.graph)
-        graph.level = level
+        graph.level, graph.map_points = level, imap.points
         timings["graph"] = 1e3 * (time.perf_counter() - t0)
         if graph.num_nodes < self.cfg.min_nodes:
             raise AgentInputError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
@@ -231,8 +232,9 @@ class AgentCore:
                                   req.sequence), ""
 
     def own_cloud(self) -> np.ndarray:
-        """Every (voxelised) node point of the own graph: the verification cloud."""
-        return np.concatenate(self.graph.points).astype(np.float32)
+        """Every point of the own map, labelled or not (the node points of a graph set without
+        its map): what a peer's points are verified against."""
+        return reference_cloud(self.graph).astype(np.float32, copy=False)
 
     def reference_cloud(self, pose: PoseConfig) -> ReferenceCloud:
         """The own cloud prepared for verification and ICP (voxels, KD-tree, normals,

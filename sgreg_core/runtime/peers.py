@@ -28,6 +28,10 @@ whenever either map changes: when the nodes they come from have moved in either 
 front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
 the peer's dense cloud, and every merged estimate that fails the verdict drops them too.
 Without a dense cloud of the peer nothing is verified at all.
+
+With more agents, the merger (runtime/merge.py) checks every agent's links around cycles: while
+it rejects this agent's link with a peer, estimates of that link are withheld (reason
+"disputed_by_cycles"), though the link itself stays for the cycles to re-judge.
 """
 from __future__ import annotations
 
@@ -57,6 +61,10 @@ class PeersConfig:
         would only cost bandwidth (an unanswered request is asked again).
     search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
         first link, and confirm it, in seconds.
+    attached_request_interval_s: the interval to a peer whose link is confirmed and that the
+        merger places in the agent's merged frame with no cycle disputing it (Peers.attached):
+        more dense data would not place it better, so with N agents each one's dense traffic
+        stays near the two-agent figure instead of growing with N^2 (runtime/merge.py).
     request_timeout_s: an unanswered request is retried after this, then after
         timeout * retry_backoff^k, up to max_retries; then the link gives up until the next
         interval.
@@ -93,6 +101,9 @@ class PeersConfig:
                                           "a link to it is confirmed", 0.0, 3600.0, live=True)
     search_request_interval_s: float = param(2.0, "the request interval while no link to the peer "
                                              "is confirmed", 0.0, 3600.0, live=True)
+    attached_request_interval_s: float = param(30.0, "the request interval to a peer whose confirmed "
+                                               "link the merged frame agrees with", 0.0,
+                                               3600.0, live=True)
     request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
                                      0.1, 600.0, live=True)
     retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0, live=True)
@@ -200,6 +211,8 @@ class Peers:
         self.model = model
         self.log = log
         self.links: dict[str, PeerLink] = {}       # peer id -> what the agent knows of it
+        self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
+        self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
         self.counters: Counter = agent.counters     # one table per node: the agent's
         self._request_seq = 0
         self._said: set = set()
@@ -454,6 +467,9 @@ class Peers:
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
             reason = self._link_rules(link, reg, hyp)
+        if reason == "ok" and link.peer_id in self.disputed:
+            # the other agents' links say otherwise: withheld, and the link kept to be re-judged
+            reason = "disputed_by_cycles"
         if reason != "ok":
             self._count(reason)
         est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
@@ -540,6 +556,8 @@ class Peers:
             return None
         interval = (self.cfg.min_request_interval_s if link.confirmed is not None
                     else self.cfg.search_request_interval_s)
+        if link.confirmed is not None and link.peer_id in self.attached:
+            interval = max(interval, self.cfg.attached_request_interval_s)
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1

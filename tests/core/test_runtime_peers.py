@@ -333,3 +333,23 @@ def test_coarse_graphs_drop_to_a_heartbeat_when_nothing_changes(model, graphs):
     assert sent == [0.0, 1.0, 2.0, 12.0, 22.0]      # the rate for quiet_after_s, then heartbeats
     agent.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.05, 0, 0)), np.random.default_rng(4)), 2, 30.0)
     assert agent.coarse_due(30.0) and agent.broadcast(30.0) and agent.coarse_due(31.0)
+
+
+def test_a_link_the_cycles_dispute_is_withheld(model, graphs):
+    a, b, reg, _ = confirmed_link(model, graphs)
+    reg.disputed = {"b"}             # the merger rejected a's link with b around a cycle
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert not est.verified and est.reason == "disputed_by_cycles" and est.link == "confirmed"
+    reg.disputed = set()
+    est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
+    assert est.verified
+
+
+def test_a_peer_the_merged_frame_places_is_asked_for_dense_data_rarely(model, graphs):
+    cfg = PeersConfig(min_request_interval_s=5.0, attached_request_interval_s=30.0)
+    for attached, expect in ((set(), True), ({"b"}, False)):
+        a, b, reg, _ = confirmed_link(model, graphs, cfg)
+        reg.attached = attached
+        drift(b, graphs, 5, 9.0)                       # new content: worth a request, if due
+        _, req = reg.on_coarse(b.coarse_message(3), now=10.0)
+        assert (req is not None) == expect

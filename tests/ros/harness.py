@@ -11,7 +11,7 @@ from sgreg_msgs.msg import InstanceMap, RegistrationResult
 
 from sgreg_core.metrics import two_agent_success
 from sgreg_core.bench.replay_score import ground_truth
-from sgreg_core.simulation.two_agents import overlapping_views
+from sgreg_core.simulation.walks import overlapping_views
 from sgreg_cli import processes
 from sgreg_ros import qos
 from sgreg_ros.convert import instance_map_to_msg, transform_from_msg

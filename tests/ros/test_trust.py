@@ -23,6 +23,7 @@ from sgreg_core.metrics import two_agent_success
 from sgreg_core.net.model import load_model
 from sgreg_core.bench.offline_replay import OfflineReplayConfig, offline_replay
 from sgreg_core.bench.replay_score import ground_truth, score_replay
+from sgreg_core.runtime.merge import MergeConfig
 from sgreg_core.runtime.peers import PeersConfig
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
@@ -67,11 +68,14 @@ def offline(bag, cfg: OfflineReplayConfig):
 
 
 def without_verdict() -> OfflineReplayConfig:
-    """Every estimate that fits a few correspondences published at once: the old behaviour."""
+    """Every estimate that fits a few correspondences published at once: the old behaviour (no
+    evidence, ambiguity or confidence threshold, no confirmation, and no merger that would
+    catch a and b disagreeing)."""
     loose = dict(min_inliers=3, min_objects=1, min_spread=0.0, min_fitness=0.0,
-                 min_footprint_share=0.0, max_ambiguity=1e9)
+                 min_footprint_share=0.0, max_ambiguity=1e9, min_confidence=0.0)
     peers = PeersConfig(confirm=False)
-    return OfflineReplayConfig(peers=replace(peers, pipeline=peers.pipeline.with_verdict(**loose)))
+    return OfflineReplayConfig(peers=replace(peers, pipeline=peers.pipeline.with_verdict(**loose)),
+                               merge=MergeConfig(cycle_m=1e9, cycle_deg=1e9))
 
 
 def test_few_objects_of_a_symmetric_room_verify_nothing_wrong(symmetric_bag):

@@ -5,6 +5,10 @@ Public API:
     partition(n_rooms, kind, rng) -> list[Room]      BSP split of an apartment / office footprint
     add_openings(rooms, rng)    doors between adjacent rooms (a spanning tree, so every room is
                                 reachable), one entrance door, windows on exterior walls
+    building(n_rooms, rng) -> (rooms, templates)   a floor: rooms on both sides of a corridor
+                                (rooms[0]), each with its door on the corridor and windows
+                                outside; rooms of one run share a template (same size, same
+                                openings: furnished alike, they are identical rooms)
     Placer                      non-overlapping placement of footprints in one room:
         .wall(w, d, rng) / .free(w, d, rng) / .at(cx, cy, yaw, w, d) -> pose or None
         .mount(w, z0, h, rng) -> (wall, s) or None
@@ -228,3 +232,50 @@ class Placer:
         b = wall.p0 + wall.u * (s + w / 2) + wall.n * 0.3
         lo, hi = np.minimum(a, b), np.maximum(a, b)
         return z0 < 1.5 and any(bx[0] < hi[0] and bx[2] > lo[0] and bx[1] < hi[1] and bx[3] > lo[1] for bx in self.boxes)
+
+
+def building(n_rooms: int, rng: np.random.Generator, run: int = 3) -> tuple[list[Room], list[int]]:
+    """A floor of an office building or hotel: a corridor (rooms[0]) with n_rooms rooms of one
+    width on its two sides. Runs of `run` neighbouring rooms on one side share a template: the
+    same door and window positions (templates[k] for rooms[k]; the corridor's is -1), so that
+    furnished from the same seed they are identical rooms, the hardest case for false links."""
+    per_side = [(n_rooms + 1) // 2, n_rooms // 2]
+    width = rng.uniform(3.4, 4.2)
+    depth = rng.uniform(4.0, 5.5, 2)                   # south, north rooms
+    corridor = rng.uniform(1.8, 2.4)
+    length = max(per_side) * width
+    total = depth[0] + corridor + depth[1]
+    height = rng.uniform(2.6, 3.0)
+    outer = (0.0, 0.0, length, total)
+
+    def room(x0, y0, x1, y1, rtype=""):
+        r = Room(x0 + WALL_HALF, y0 + WALL_HALF, x1 - WALL_HALF, y1 - WALL_HALF, height, rtype)
+        r.make_walls(outer)
+        return r
+
+    rooms = [room(0.0, depth[0], length, depth[0] + corridor, "corridor")]
+    templates = [-1]
+    n_templates = 0
+    for side, (y0, y1) in enumerate(((0.0, depth[0]), (depth[0] + corridor, total))):
+        door_wall, corridor_wall = (2, 0) if side == 0 else (0, 2)
+        for k in range(per_side[side]):
+            if k % run == 0:
+                n_templates += 1
+                door = rng.uniform(0.3, width - 1.3)                 # from the room's west end
+                window = (rng.uniform(0.4, 0.6), rng.uniform(1.0, 1.8), rng.uniform(0.8, 1.0))
+            r = room(k * width, y0, (k + 1) * width, y1)
+            x_door = r.x0 + door
+            s0, s1 = _to_s(r.walls[door_wall], x_door, x_door + 0.9, "x")
+            r.walls[door_wall].openings.append((s0, s1, 0.0, 2.05, "door"))
+            s0, s1 = _to_s(rooms[0].walls[corridor_wall], x_door, x_door + 0.9, "x")
+            rooms[0].walls[corridor_wall].openings.append((s0, s1, 0.0, 2.05, "opening"))
+            outside = r.walls[0 if side == 0 else 2]
+            centre, w, z0 = window
+            s = centre * outside.length
+            outside.openings.append((s - w / 2, s + w / 2, z0, min(z0 + 1.3, height - 0.25), "window"))
+            rooms.append(r)
+            templates.append(n_templates - 1)
+    # an entrance at one end of the corridor
+    end = rooms[0].walls[3]
+    end.openings.append((end.length / 2 - 0.5, end.length / 2 + 0.5, 0.0, 2.1, "door"))
+    return rooms, templates

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..noise import NoiseConfig, apply_noise
 from ...types import InstanceMap
-from .layout import Placer, Room, Wall, add_openings, partition
+from .layout import Placer, Room, Wall, add_openings, building, partition
 from .objects import KINDS, Kind, build
 from .shapes import Shapes, sample_shapes
 
@@ -47,15 +47,19 @@ ROOM_TYPES: dict[str, list[tuple[str, int, int]]] = {
                      ("trash can", 0, 1), ("picture", 0, 1), ("chair", 0, 2)],
     "kitchenette": [("counter", 1, 1), ("refrigerator", 0, 1), ("sink", 0, 1), ("table", 0, 1), ("stool", 0, 3),
                     ("trash can", 1, 2), ("microwave", 0, 1), ("bench", 0, 1), ("wall cabinet", 0, 2)],
+    "corridor": [("plant", 1, 4), ("trash can", 0, 2), ("bench", 0, 2), ("picture", 1, 4), ("radiator", 0, 2),
+                 ("coat rack", 0, 1), ("file cabinet", 0, 1)],
 }
 APARTMENT = ["living room", "bedroom", "kitchen", "bathroom", "dining room", "study", "bedroom"]
 OFFICE = ["open office", "meeting room", "kitchenette", "study", "meeting room", "open office"]
+BUILDING = ["study", "bedroom", "meeting room", "open office", "kitchenette"]   # per run of rooms
 
 
 @dataclass
 class SynthConfig:
-    kind: str = "apartment"            # "apartment" or "office"
-    rooms: int = 1
+    kind: str = "apartment"            # "apartment", "office" or "building" (a corridor floor)
+    rooms: int = 1                     # building: rooms besides the corridor
+    run: int = 3                       # building: neighbouring rooms that are identical
     density: float = 650.0             # points per m^2 of surface (ScanNet vertices: 450-1500)
     density_jitter: float = 0.3        # per-scene density factor uniform in [1 - j, 1 + j]
     surface_noise: float = 0.005       # m, std of the noise on sampled points (mesh roughness)
@@ -103,8 +107,8 @@ class _Scene:
 
 
 class _RoomFurnisher:
-    def __init__(self, scene: _Scene, room: Room) -> None:
-        self.scene, self.room, self.rng = scene, room, scene.rng
+    def __init__(self, scene: _Scene, room: Room, rng: np.random.Generator) -> None:
+        self.scene, self.room, self.rng = scene, room, rng
         self.placer = Placer(room)
         self.cache: dict[str, tuple[tuple, Shapes]] = {}
         self.supports: list[tuple] = []    # (cx, cy, yaw, w, d, top_z, kind name, taken boxes)
@@ -332,7 +336,7 @@ _WINDOW = Kind("window", lambda *a: Shapes(), (0, 0), (0, 0), (0, 0), "wall", "w
 
 
 def _furnish(scene: _Scene, room: Room, rng: np.random.Generator) -> None:
-    f = _RoomFurnisher(scene, room)
+    f = _RoomFurnisher(scene, room, rng)
     recipe = ROOM_TYPES[room.rtype]
     floor_first = sorted(recipe, key=lambda r: KINDS[r[0]].placement in ("top", "mount") if r[0] in KINDS else False)
     for name, lo, hi in floor_first:
@@ -362,26 +366,37 @@ def _hide_occluded(points: np.ndarray, tags: np.ndarray, structural: np.ndarray,
 
 
 def generate_scene(seed: int, cfg: SynthConfig | None = None) -> InstanceMap:
-    """A furnished apartment or office as an InstanceMap with colours (see SynthConfig)."""
+    """A furnished apartment, office or building floor as an InstanceMap with colours (see
+    SynthConfig)."""
     cfg = cfg or SynthConfig()
-    if cfg.kind not in ("apartment", "office"):
-        raise ValueError(f"kind must be 'apartment' or 'office', got {cfg.kind!r}")
-    if cfg.rooms < 1:
-        raise ValueError(f"rooms must be >= 1, got {cfg.rooms}")
+    if cfg.kind not in ("apartment", "office", "building"):
+        raise ValueError(f"kind must be 'apartment', 'office' or 'building', got {cfg.kind!r}")
+    if cfg.rooms < 1 or cfg.run < 1:
+        raise ValueError(f"rooms and run must be >= 1, got {cfg.rooms}, {cfg.run}")
     rng = np.random.default_rng(seed)
-    rooms = partition(cfg.rooms, cfg.kind, rng)
-    add_openings(rooms, rng)
-    types = APARTMENT if cfg.kind == "apartment" else OFFICE
-    order = rng.permutation(len(types))
-    rooms_by_size = sorted(range(len(rooms)), key=lambda k: -rooms[k].area)
-    for rank, k in enumerate(rooms_by_size):
-        rooms[k].rtype = types[rank] if cfg.kind == "office" or rank == 0 else types[order[rank % len(types)]]
-        if cfg.kind == "apartment" and rank == 0 and cfg.rooms == 1:
-            rooms[k].rtype = ["living room", "bedroom", "study", "kitchen"][int(rng.integers(4))]
+    templates: list[int] = []
+    if cfg.kind == "building":
+        rooms, templates = building(cfg.rooms, rng, cfg.run)
+        order = rng.permutation(len(BUILDING))
+        for room, t in zip(rooms[1:], templates[1:]):
+            room.rtype = BUILDING[order[t % len(BUILDING)]]
+    else:
+        rooms = partition(cfg.rooms, cfg.kind, rng)
+        add_openings(rooms, rng)
+        types = APARTMENT if cfg.kind == "apartment" else OFFICE
+        order = rng.permutation(len(types))
+        rooms_by_size = sorted(range(len(rooms)), key=lambda k: -rooms[k].area)
+        for rank, k in enumerate(rooms_by_size):
+            rooms[k].rtype = types[rank] if cfg.kind == "office" or rank == 0 else types[order[rank % len(types)]]
+            if cfg.kind == "apartment" and rank == 0 and cfg.rooms == 1:
+                rooms[k].rtype = ["living room", "bedroom", "study", "kitchen"][int(rng.integers(4))]
     scene = _Scene(cfg, rng)
-    for room in rooms:
-        _build_structure(scene, room, rng)
-        _furnish(scene, room, rng)
+    for k, room in enumerate(rooms):
+        # the rooms of one template are built and furnished from one seed: identical rooms
+        t = templates[k] if templates else -1
+        room_rng = rng if t < 0 else np.random.default_rng([seed, 1 + t])
+        _build_structure(scene, room, room_rng)
+        _furnish(scene, room, room_rng)
 
     density = cfg.density * rng.uniform(1 - cfg.density_jitter, 1 + cfg.density_jitter)
     points, tags = sample_shapes(scene.shapes, density, rng)

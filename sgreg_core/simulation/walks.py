@@ -1,9 +1,10 @@
-"""Two agents walking through one scene: the instance maps each holds over time, each in its own
-map frame, and the ground truth between the frames. What `sgreg make-bag` records.
+"""Agents walking through one scene: the instance maps each holds over time, each in its own map
+frame, and the ground truth between the frames. What `sgreg make-bag` records.
 
 Agent a walks a path across the scene; agent b walks the same path in the opposite direction
 (the paper's hardest sequences: they see the same places at different times, from opposite
-sides) or another path. Each agent's map frame is its start pose, with a random yaw and offset
+sides) or another path; agents c, d, ... (N agents) walk paths of their own from seeded
+starts. Each agent's map frame is its start pose, with a random yaw and offset
 on top, so no two frames agree and nothing can be learnt from where maps happen to start.
 
 Agent b may walk a second capture of the same room (furniture moved, other coverage), given
@@ -26,9 +27,13 @@ from ..maps.scene_graph import is_structural
 from ..types import InstanceMap
 
 
+AGENT_NAMES = "abcdefghijklmnopqrstuvwxyz"
+
+
 @dataclass
-class TwoAgentConfig:
-    """opposite: b walks a's path backwards (else a second, independent path).
+class WalkConfig:
+    """agents: how many agents walk (named a, b, c, ...).
+    opposite: b walks a's path backwards (else a second, independent path).
     mapping_period: seconds between two instance-map snapshots of one agent.
     voxel: snapshots are voxel-downsampled to this size (m) to keep messages and bags small.
     max_offset: the map frames' random offsets are up to this far (m) from the start poses.
@@ -38,6 +43,7 @@ class TwoAgentConfig:
     object_min_points: an object counts as held by a map once it has this many points (the
         scene graph's GraphConfig.min_points)."""
 
+    agents: int = 2
     opposite: bool = True
     mapping_period: float = 1.0
     voxel: float = 0.05
@@ -60,9 +66,16 @@ class AgentRun:
 
 
 @dataclass
-class TwoAgentRun:
-    a: AgentRun
-    b: AgentRun
+class WalkRun:
+    agents: list[AgentRun]
+
+    @property
+    def a(self) -> AgentRun:
+        return self.agents[0]
+
+    @property
+    def b(self) -> AgentRun:
+        return self.agents[1]
 
     @property
     def T_a_b(self) -> np.ndarray:
@@ -148,12 +161,14 @@ def held_objects(imap: InstanceMap, min_points: int, rename: dict[int, int] | No
     return sorted(out)
 
 
-def simulate(scene: InstanceMap, rng: np.random.Generator, cfg: TwoAgentConfig | None = None,
-             progress=None, scene_b: InstanceMap | None = None) -> TwoAgentRun:
-    """Both agents' snapshot sequences. scene_b: a second capture of the room, in scene's
+def simulate(scene: InstanceMap, rng: np.random.Generator, cfg: WalkConfig | None = None,
+             progress=None, scene_b: InstanceMap | None = None) -> WalkRun:
+    """Every agent's snapshot sequence. scene_b: a second capture of the room, in scene's
     frame, that b walks (default: b walks `scene` too). progress(fraction) is called as work
     proceeds."""
-    cfg = cfg or TwoAgentConfig()
+    cfg = cfg or WalkConfig()
+    if not 2 <= cfg.agents <= len(AGENT_NAMES):
+        raise ValueError(f"agents must be in [2, {len(AGENT_NAMES)}], got {cfg.agents}")
     rename = None if scene_b is None else object_correspondence(scene, scene_b)
     if cfg.voxel > 0:
         scene = downsample_per_instance(scene, cfg.voxel)
@@ -167,17 +182,21 @@ def simulate(scene: InstanceMap, rng: np.random.Generator, cfg: TwoAgentConfig |
     else:
         traj_b = TrajectoryConfig(**{**cfg.trajectory.__dict__, "start": cfg.start_b})
         times_b, poses_b = make_trajectory(scene_b, rng, traj_b)
+    walks = [("a", scene, times_a, poses_a, None, sensors[0]),
+             ("b", scene_b, times_b, poses_b, rename, sensors[1])]
+    for name in AGENT_NAMES[2:cfg.agents]:        # the others walk paths of their own
+        traj = TrajectoryConfig(**{**cfg.trajectory.__dict__, "start": None, "random_start": True})
+        walks.append((name, scene, *make_trajectory(scene, rng, traj), None, sensors[0]))
     runs = []
-    walks = (("a", scene, times_a, poses_a, None), ("b", scene_b, times_b, poses_b, rename))
-    for i, (name, walked, times, poses, names) in enumerate(walks):
+    for i, (name, walked, times, poses, names, sensor) in enumerate(walks):
         T = _map_frame(poses[0], rng, cfg.max_offset)
-        seen = observe_sequence(walked, times, poses, sensors[i])
+        seen = observe_sequence(walked, times, poses, sensor)
         snaps = [(t, _in_frame(m, T)) for t, m in seen]
         objects = [held_objects(m, cfg.object_min_points, names) for _, m in seen]
         runs.append(AgentRun(name, times, poses, T, snaps, objects))
         if progress:
-            progress((i + 1) / 2)
-    return TwoAgentRun(*runs)
+            progress((i + 1) / len(walks))
+    return WalkRun(runs)
 
 
 def overlapping_views(names: list[str], seed: int = 0, rooms: int = 1) -> tuple[dict, dict]:

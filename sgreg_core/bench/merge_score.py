@@ -1,0 +1,68 @@
+"""Scoring the merged frame of N agents against ground truth (what `sgreg replay` reports as
+"merge"): which agents are placed, whether a wrong link was kept, how far each merged pose is
+from the truth. Pure: fed with the merger's result and a bag's ground truth.
+
+A link is wrong when it is off by more than 0.5 m or 5 deg (the two-agent criterion); a merged
+pose T_merged<-x is compared with T_anchor<-x of the ground truth (the merged frame is the
+anchor's map frame).
+
+Public API:
+    merge_of_records(records, agents, cfg=None) -> MergeResult   what every agent's merger holds
+                                   after these results (replay records, in time order)
+    score_merge(result, T_scene_map, poses=None) -> dict
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import invert_transform
+from ..metrics import rre, rte
+from ..runtime.merge import MergeConfig, MergeResult, Merger
+from .replay_score import ground_truth
+
+WRONG_M, WRONG_DEG = 0.5, 5.0
+
+
+def merge_of_records(records, agents, cfg: MergeConfig | None = None) -> MergeResult:
+    """The merge every agent's merger computes from these registration results (they all hear
+    the same results, so they all hold this one)."""
+    merger = Merger(cfg or MergeConfig(), min(agents))
+    for r in sorted(records, key=lambda r: r.t):
+        merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence,
+                    r.bag_t if r.bag_t is not None else r.t)
+    merger.links.agents |= set(agents)
+    merger.update()
+    return merger.result
+
+
+def score_merge(result: MergeResult, T_scene_map: dict, poses: dict | None = None) -> dict:
+    """poses: the merged poses as published (agent -> T_merged<-agent, e.g. read off /tf);
+    default the result's own."""
+    poses = result.poses if poses is None else poses
+    wrong = []
+    for link in result.accepted:
+        gt = ground_truth(T_scene_map, link.src, link.dst)
+        if rte(link.T, gt) > WRONG_M or rre(link.T, gt) > WRONG_DEG:
+            wrong.append(f"{link.src}->{link.dst}")
+    errors = {}
+    if result.anchor is not None:
+        anchor = np.asarray(T_scene_map[result.anchor], np.float64)
+        for agent, T in sorted(poses.items()):
+            gt = invert_transform(anchor) @ np.asarray(T_scene_map[agent], np.float64)
+            errors[agent] = (float(rte(T, gt)), float(rre(T, gt)))
+    rejected_right = [f"{l.src}->{l.dst}" for l, _ in result.rejected
+                      if rte(l.T, ground_truth(T_scene_map, l.src, l.dst)) <= WRONG_M
+                      and rre(l.T, ground_truth(T_scene_map, l.src, l.dst)) <= WRONG_DEG]
+    return {
+        "agents": len(T_scene_map),
+        "attached": len(poses),
+        "anchor": result.anchor,
+        "wrong_links_kept": len(wrong),
+        "wrong_links": wrong,
+        "links_kept": len(result.accepted),
+        "links_rejected": len(result.rejected),
+        "right_links_rejected": rejected_right,
+        "max_pose_error_m": max((e[0] for e in errors.values()), default=None),
+        "max_pose_error_deg": max((e[1] for e in errors.values()), default=None),
+        "pose_errors": {a: {"m": round(e[0], 4), "deg": round(e[1], 3)} for a, e in errors.items()},
+    }

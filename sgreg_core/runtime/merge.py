@@ -1,0 +1,318 @@
+"""N agents, one frame: the verified pairwise links of every agent turned into one pose per map.
+
+Every agent publishes its verified links (T_a^b on /a/sgreg/registration). Pairwise links
+alone never bend a map into another: one wrong link would, so before any pose is computed the
+links are checked against each other around cycles. Each agent runs the same deterministic
+steps on the same links, so all of them publish the same tree:
+
+1. One measurement per directed link: the latest verified T_a^b of agent a for peer b, as a
+   4-DoF transform (yaw and translation: the maps are gravity aligned). A link whose owner says
+   it is no longer confirmed (withdrawn, contradicted) is dropped.
+2. Consistency: a measurement's support is the number of short cycles (a -> b measured both
+   ways, or a triangle a -> b -> c) it closes within cycle_m / cycle_deg. Measurements are
+   taken in order of support, then confidence; one joins the accepted set when it connects two
+   groups of agents, or when it agrees with the path the accepted set already gives between its
+   ends. Otherwise it breaks the cycles it is in and is rejected, with the reason. A wrong link
+   in a cycle of right ones closes no consistent cycle, so it comes after them and is refused;
+   a link in no cycle (a bridge) cannot be checked and is kept, as the pair's own verdict and
+   confirmation already are.
+3. Poses: the anchor (the lowest agent id of its group) is the merged frame; every other
+   agent's pose is the confidence-weighted average over all its accepted measurements of
+   (neighbour pose o measurement), iterated to a fixed point (circular mean for yaw), so a map
+   reached by several paths sits where they agree best.
+
+Agents that no accepted path joins to the lowest agent id present are not attached; they form
+groups of their own, reported but not placed in the merged frame.
+
+Public API:
+    MergeConfig
+    Link                      one verified T_src^dst with its confidence and stamp
+    MergeResult               poses (agent -> 4x4 T_merged<-agent), attached, groups,
+                              accepted / rejected links (rejected: link, reason)
+    merge(links, agents, cfg) -> MergeResult
+    Links                     the latest link state per directed pair, fed with results
+    Merger                    one agent's merger: Links + merge + what changed + which peers
+                              need no more dense data
+    to_4dof(T) -> (yaw, t) / from_4dof(yaw, t) -> 4x4
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import param
+from ..geometry import invert_transform
+
+
+@dataclass
+class MergeConfig:
+    """merged_frame: the name of the shared frame (the parent of every attached <id>/map).
+    cycle_m / cycle_deg: measurements that close a cycle (or agree with the accepted path)
+        within this translation / rotation are consistent. A cycle composes several links, so
+        this is wider than one link's agreement.
+    max_link_age_s: a link not re-verified for this long is left out (0: links never age).
+    average_iters: fixed-point iterations of the pose averaging."""
+
+    merged_frame: str = param("sgreg_merged", "the shared frame every attached agent map is placed in")
+    cycle_m: float = param(0.5, "links closing a cycle within this translation (m) are consistent",
+                           0.01, 10.0)
+    cycle_deg: float = param(5.0, "links closing a cycle within this rotation (deg) are consistent",
+                             0.1, 90.0)
+    max_link_age_s: float = param(0.0, "leave out links not re-verified for this long (0: never)",
+                                  0.0, 86400.0)
+    average_iters: int = 30
+
+
+def to_4dof(T: np.ndarray) -> tuple[float, np.ndarray]:
+    """Yaw (rad) and translation of a transform; roll and pitch are dropped."""
+    T = np.asarray(T, np.float64)
+    return float(np.arctan2(T[1, 0], T[0, 0])), T[:3, 3].copy()
+
+
+def from_4dof(yaw: float, t) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = np.asarray(t, np.float64)
+    return T
+
+
+def _deviation(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and yaw (deg) between two 4-DoF transforms."""
+    D = invert_transform(A) @ B
+    yaw, t = to_4dof(D)
+    return float(np.linalg.norm(t)), float(abs(np.degrees(yaw)))
+
+
+@dataclass(frozen=True)
+class Link:
+    """T maps src's map into dst's (T_src^dst, as agent src publishes it for peer dst)."""
+
+    src: str
+    dst: str
+    T: np.ndarray = field(compare=False, hash=False)
+    confidence: float = 1.0
+    stamp: float = 0.0
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.src, self.dst
+
+    def towards(self, a: str) -> np.ndarray:
+        """The transform that maps the other end's map into a's."""
+        return self.T if self.dst == a else invert_transform(self.T)
+
+
+@dataclass
+class MergeResult:
+    poses: dict[str, np.ndarray]          # attached agent -> T_merged<-agent (4-DoF)
+    anchor: str | None
+    attached: list[str]
+    groups: list[list[str]]               # every agent, by connected group (anchor's first)
+    accepted: list[Link]
+    rejected: list[tuple[Link, str]]      # (link, one-line reason)
+
+    def to_json(self) -> dict:
+        return {"anchor": self.anchor, "attached": self.attached, "groups": self.groups,
+                "accepted": [f"{l.src}->{l.dst}" for l in self.accepted],
+                "rejected": {f"{l.src}->{l.dst}": why for l, why in self.rejected},
+                "poses": {a: np.round(T, 6).tolist() for a, T in self.poses.items()}}
+
+
+def _support(links: list[Link], cfg: MergeConfig) -> dict[tuple[str, str], int]:
+    """Per link, the consistent short cycles it closes: the same pair measured the other way
+    (or twice), and triangles through a third agent."""
+    by_pair = defaultdict(list)
+    for l in links:
+        by_pair[frozenset(l.key)].append(l)
+    support = dict.fromkeys((l.key for l in links), 0)
+    agents = sorted({a for l in links for a in l.key})
+
+    def measurements(a: str, b: str) -> list[np.ndarray]:
+        """T_a^b from every link between a and b."""
+        return [l.towards(b) for l in by_pair.get(frozenset((a, b)), [])]
+
+    for l in links:
+        a, b = l.key
+        for other in by_pair[frozenset(l.key)]:
+            if other is not l and _consistent(l.T, other.towards(b), cfg):
+                support[l.key] += 1
+        for c in agents:
+            if c in (a, b):
+                continue
+            for T_ac in measurements(a, c):
+                for T_cb in measurements(c, b):
+                    if _consistent(l.T, T_cb @ T_ac, cfg):
+                        support[l.key] += 1
+    return support
+
+
+def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
+    dt, dyaw = _deviation(A, B)
+    return dt < cfg.cycle_m and dyaw < cfg.cycle_deg
+
+
+def _path_transform(tree: dict[str, dict[str, np.ndarray]], a: str, b: str) -> np.ndarray | None:
+    """T_a^b along the accepted forest (None when a and b are not joined)."""
+    seen, stack = {a: np.eye(4)}, [a]
+    while stack:
+        x = stack.pop()
+        for y, T_xy in tree[x].items():
+            if y not in seen:
+                seen[y] = T_xy @ seen[x]
+                stack.append(y)
+    return seen.get(b)
+
+
+def merge(links: list[Link], agents: list[str] | None = None,
+          cfg: MergeConfig | None = None) -> MergeResult:
+    """The consistent links and one pose per attached agent (see the module docstring)."""
+    cfg = cfg or MergeConfig()
+    links = sorted(links, key=lambda l: l.key)           # deterministic, whatever the arrival order
+    names = sorted(set(agents or []) | {a for l in links for a in l.key})
+    support = _support(links, cfg)
+    order = sorted(links, key=lambda l: (-support[l.key], -l.confidence, l.key))
+    tree: dict[str, dict[str, np.ndarray]] = {a: {} for a in names}   # accepted: a -> {b: T_a^b}
+    accepted, rejected = [], []
+    for l in order:
+        path = _path_transform(tree, l.src, l.dst)
+        if path is not None and not _consistent(l.T, path, cfg):
+            dt, dyaw = _deviation(l.T, path)
+            rejected.append((l, f"breaks the cycles it is in: {dt:.2f} m / {dyaw:.1f} deg from the "
+                                f"path of the accepted links (closes {support[l.key]} consistent cycles)"))
+            continue
+        accepted.append(l)
+        if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
+            tree[l.src][l.dst], tree[l.dst][l.src] = l.T, invert_transform(l.T)
+    groups = _groups(names, accepted)
+    anchor = names[0] if names else None
+    attached = groups[0] if groups else []
+    poses = _average(attached, anchor, [l for l in accepted if l.src in attached], cfg)
+    return MergeResult(poses=poses, anchor=anchor, attached=attached, groups=groups,
+                       accepted=accepted, rejected=rejected)
+
+
+def _groups(names: list[str], accepted: list[Link]) -> list[list[str]]:
+    """Connected groups of agents under the accepted links, the lowest id's group first."""
+    parent = {a: a for a in names}
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for l in accepted:
+        parent[root(l.src)] = root(l.dst)
+    groups = defaultdict(list)
+    for a in names:
+        groups[root(a)].append(a)
+    return sorted((sorted(g) for g in groups.values()), key=lambda g: g[0])
+
+
+def _average(group: list[str], anchor: str | None, links: list[Link],
+             cfg: MergeConfig) -> dict[str, np.ndarray]:
+    """4-DoF poses T_merged<-agent of one group: the anchor at the identity, the others at the
+    weighted average of what their accepted measurements say, iterated to a fixed point."""
+    if anchor is None or anchor not in group:
+        return {}
+    tree: dict[str, dict[str, np.ndarray]] = {a: {} for a in group}
+    for l in links:
+        tree[l.src].setdefault(l.dst, l.T)
+        tree[l.dst].setdefault(l.src, invert_transform(l.T))
+    # start from the spanning paths: T_merged<-a = T_a^anchor
+    pose = {a: to_4dof(_path_transform(tree, a, anchor)) for a in group}
+    for _ in range(cfg.average_iters):
+        moved = 0.0
+        for a in group:
+            if a == anchor:
+                continue
+            yaws, ts, ws = [], [], []
+            for l in links:
+                if a not in l.key:
+                    continue
+                other = l.dst if l.src == a else l.src
+                # the pose of a through this measurement: T_merged<-other @ T_a^other
+                yaw, t = to_4dof(from_4dof(*pose[other]) @ l.towards(other))
+                yaws.append(yaw)
+                ts.append(t)
+                ws.append(max(l.confidence, 1e-3))
+            w = np.asarray(ws) / np.sum(ws)
+            yaw = float(np.arctan2(w @ np.sin(yaws), w @ np.cos(yaws)))
+            t = w @ np.asarray(ts)
+            moved = max(moved, float(np.linalg.norm(t - pose[a][1])))
+            pose[a] = (yaw, t)
+        if moved < 1e-6:
+            break
+    return {a: from_4dof(*pose[a]) for a in group}
+
+
+class Links:
+    """The latest state of every directed link, fed with every registration result of every
+    agent (verified or not). A verified result sets the link, and so does one withheld only
+    because the cycles dispute the link (reason "disputed_by_cycles": the cycles must keep
+    seeing the link's pose to re-judge it); a result that says the link is no longer confirmed
+    (withdrawn, contradicted, restarted) drops it; other failed estimates of a confirmed link
+    leave it."""
+
+    def __init__(self):
+        self._links: dict[tuple[str, str], Link] = {}
+        self.agents: set[str] = set()
+
+    def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
+             link_state: str, confidence: float, stamp: float) -> None:
+        self.agents |= {agent, peer}
+        if verified or reason == "disputed_by_cycles":
+            self._links[(agent, peer)] = Link(agent, peer, np.asarray(T, np.float64), float(confidence),
+                                              float(stamp))
+        elif link_state != "confirmed":
+            self._links.pop((agent, peer), None)
+
+    def current(self, now: float | None = None, max_age_s: float = 0.0) -> list[Link]:
+        links = list(self._links.values())
+        if max_age_s > 0 and now is not None:
+            links = [l for l in links if now - l.stamp <= max_age_s]
+        return links
+
+
+class Merger:
+    """What an agent's merger keeps: every agent's links, the last merge, and the one-line
+    news of what changed (a link rejected, an agent attached) for the log."""
+
+    def __init__(self, cfg: MergeConfig, agent: str):
+        self.cfg, self.agent = cfg, agent
+        self.links = Links()
+        self.result = merge([], [agent], cfg)
+
+    def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
+             link_state: str, confidence: float, stamp: float) -> None:
+        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp)
+
+    def update(self, now: float | None = None) -> list[str]:
+        """Merge the current links; returns what changed since the last merge, one line each."""
+        old = self.result
+        self.result = merge(self.links.current(now, self.cfg.max_link_age_s),
+                            sorted(self.links.agents | {self.agent}), self.cfg)
+        news = []
+        for a in sorted(set(self.result.attached) - set(old.attached)):
+            news.append(f"{a}/map attached to {self.cfg.merged_frame} (anchor {self.result.anchor})")
+        for a in sorted(set(old.attached) - set(self.result.attached)):
+            news.append(f"{a}/map no longer attached to {self.cfg.merged_frame}")
+        before = {l.key for l, _ in old.rejected}
+        for l, why in self.result.rejected:
+            if l.key not in before:
+                news.append(f"link {l.src} -> {l.dst} rejected: {why}")
+        return news
+
+    def disputed_peers(self) -> set[str]:
+        """Peers whose link with this agent (either direction) the cycles rejected."""
+        return {x for l, _ in self.result.rejected if self.agent in l.key for x in l.key} - {self.agent}
+
+    def settled_peers(self) -> set[str]:
+        """Peers placed in this agent's merged frame whose links with it no cycle disputes:
+        more dense data from them would not place them better."""
+        if self.agent not in self.result.attached:
+            return set()
+        return set(self.result.attached) - self.disputed_peers() - {self.agent}

@@ -1,0 +1,127 @@
+"""The merger (runtime/merge.py): pairwise links of N agents -> one consistent frame, a wrong
+link refused by the cycles it breaks, the same tree whatever the order links arrive in."""
+import itertools
+
+import numpy as np
+import pytest
+
+from sgreg_core.geometry import invert_transform
+from sgreg_core.runtime.merge import Link, Links, MergeConfig, from_4dof, merge, to_4dof
+
+# each agent's map frame in the world: T_world<-agent
+WORLD = {"a": from_4dof(0.3, (1.0, 2.0, 0.0)), "b": from_4dof(-1.2, (-4.0, 0.5, 0.1)),
+         "c": from_4dof(2.5, (3.0, -6.0, 0.0)), "d": from_4dof(0.9, (8.0, 8.0, -0.1))}
+
+
+def true_link(src: str, dst: str, noise: float = 0.0, rng=None) -> Link:
+    """noise: yaw error (deg, std); the translation error is noise / 10 m per axis."""
+    T = invert_transform(WORLD[dst]) @ WORLD[src]
+    if noise:
+        T = from_4dof(rng.normal(0, np.radians(noise)), rng.normal(0, noise / 10, 3)) @ T
+    return Link(src, dst, T, confidence=0.95)
+
+
+def relative_to_anchor(poses: dict, anchor: str = "a") -> dict:
+    """T_merged<-x should equal T_anchor<-x = inv(WORLD[anchor]) @ WORLD[x]."""
+    return {x: invert_transform(WORLD[anchor]) @ WORLD[x] for x in poses}
+
+
+def assert_poses(result, tol_m=0.05, tol_deg=0.5):
+    expected = relative_to_anchor(result.poses, result.anchor)
+    for x, T in result.poses.items():
+        yaw, t = to_4dof(invert_transform(expected[x]) @ T)
+        assert np.linalg.norm(t) < tol_m and abs(np.degrees(yaw)) < tol_deg, x
+
+
+def test_a_chain_of_links_places_every_agent():
+    result = merge([true_link("b", "a"), true_link("c", "b"), true_link("d", "c")])
+    assert result.anchor == "a" and result.attached == ["a", "b", "c", "d"]
+    assert not result.rejected and np.allclose(result.poses["a"], np.eye(4))
+    assert_poses(result)
+
+
+def test_an_injected_wrong_link_is_rejected_by_cycle_consistency():
+    rng = np.random.default_rng(0)
+    right = [true_link(s, d, noise=0.5, rng=rng) for s, d in itertools.permutations("abcd", 2)
+             if (s, d) != ("d", "b")]
+    wrong = Link("d", "b", from_4dof(np.radians(40), (2.0, 1.0, 0.0)) @ true_link("d", "b").T,
+                 confidence=0.99)        # most confident of all, and still refused
+    result = merge(right + [wrong])
+    assert [(l.src, l.dst) for l, _ in result.rejected] == [("d", "b")]
+    assert "breaks the cycles" in result.rejected[0][1]
+    assert result.attached == ["a", "b", "c", "d"]
+    assert_poses(result, tol_m=0.1, tol_deg=1.0)
+
+
+def test_every_order_of_arrival_gives_the_same_tree():
+    rng = np.random.default_rng(1)
+    links = [true_link(s, d, noise=1.0, rng=rng) for s, d in itertools.permutations("abcd", 2)]
+    links.append(Link("c", "a", from_4dof(2.0, (5.0, 0.0, 0.0)), confidence=0.9))   # wrong
+    first = merge(links)
+    for k in range(5):
+        again = merge(list(np.random.default_rng(k).permutation(np.array(links, dtype=object))))
+        assert again.attached == first.attached
+        for x in first.poses:
+            assert np.allclose(again.poses[x], first.poses[x], atol=1e-9)
+
+
+def test_several_paths_are_averaged():
+    """Noisy links over cycles: the averaged poses are closer to the truth than the direct
+    links to the anchor alone."""
+    def error(x, T):
+        return np.linalg.norm(to_4dof(invert_transform(relative_to_anchor({x: 0})[x]) @ T)[1])
+
+    averaged, direct = [], []
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        links = [true_link(s, d, noise=0.5, rng=rng) for s, d in itertools.permutations("abcd", 2)]
+        result = merge(links)
+        assert not result.rejected and result.attached == ["a", "b", "c", "d"]
+        for l in links:
+            if "a" in l.key:
+                x = l.src if l.dst == "a" else l.dst
+                direct.append(error(x, l.towards("a")))
+        averaged += [error(x, result.poses[x]) for x in "bcd"]
+    assert np.mean(averaged) < 0.7 * np.mean(direct)
+
+
+def test_agents_no_link_reaches_are_not_attached():
+    result = merge([true_link("b", "a"), true_link("d", "c")], agents=["a", "b", "c", "d", "e"])
+    assert result.attached == ["a", "b"] and set(result.poses) == {"a", "b"}
+    assert result.groups == [["a", "b"], ["c", "d"], ["e"]]
+    assert merge([]).anchor is None and merge([]).poses == {}
+
+
+def test_links_follow_what_each_agent_says():
+    links = Links()
+    T = true_link("a", "b").T
+    links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp=1.0)
+    links.take("a", "b", np.eye(4), verified=False, reason="verification_failed", link_state="confirmed", confidence=0.2, stamp=2.0)
+    assert len(links.current()) == 1 and np.allclose(links.current()[0].T, T)   # a failed estimate keeps it
+    links.take("a", "b", np.eye(4), verified=False, reason="contradicted", link_state="candidate", confidence=0.9, stamp=3.0)
+    assert links.current() == []                                                # withdrawn
+    links.take("b", "a", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp=4.0)
+    assert links.current(now=100.0, max_age_s=10.0) == [] and len(links.current(now=10.0, max_age_s=10.0)) == 1
+    assert links.agents == {"a", "b"}
+    # withheld only because the cycles dispute it: still the link's pose, for the cycles to re-judge
+    T2 = true_link("b", "a", noise=1.0, rng=np.random.default_rng(0)).T
+    links.take("b", "a", T2, verified=False, reason="disputed_by_cycles", link_state="confirmed",
+               confidence=0.9, stamp=5.0)
+    assert np.allclose(links.current()[0].T, T2)
+
+
+def test_the_merger_names_disputed_and_settled_peers():
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    rng = np.random.default_rng(3)
+    for s, d in itertools.permutations("abc", 2):
+        l = true_link(s, d, noise=0.3, rng=rng)
+        if (s, d) == ("a", "c"):        # a's own link to c is wrong
+            l = Link("a", "c", from_4dof(0.0, (4.0, 0.0, 0.0)) @ l.T)
+        m.take(l.src, l.dst, l.T, True, "ok", "confirmed", 0.9, 1.0)
+    news = m.update(2.0)
+    assert any("link a -> c rejected" in line for line in news)
+    assert any("c/map attached" in line for line in news)
+    assert m.disputed_peers() == {"c"} and m.settled_peers() == {"b"}
+    assert m.update(3.0) == []             # nothing new the second time
