@@ -14,3 +14,6 @@ make_one() {  # name kind rooms scene_seed bag_seed extra-args...
 make_one apartment_opposite    apartment 2 3 1
 make_one office_same_direction office    2 5 2 --same-direction
 make_one apartment3_opposite   apartment 3 8 3
+# four agents on a building floor with runs of identical rooms: 15 cm maps every 3 s keep it small
+make_one building_4agents      building  10 5 1 --agents 4 --voxel 0.15 --speed 0.6 --mapping-period 3 \
+  --random-start --waypoints 2

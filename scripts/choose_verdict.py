@@ -16,7 +16,7 @@ weights). Last it fits the logistic confidence (pose/verdict.py `confidence`) on
 and prints its weights.
 
     python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--register DIR ...]
-                                     [--held-out scene0005]
+                                     [--held-out scene0005] [--refit] [--min-objects K]
 """
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def describe(frames: list[dict]) -> None:
         print(f"  {k:16s} right p5..p95 {q(a)}   wrong p5..p95 {q(b)}")
 
 
-def grid(frames: list[dict], min_inliers: int, shipped: tuple) -> None:
+def grid(frames: list[dict], min_inliers: int, shipped: tuple, min_objects: int = 2) -> None:
     ok = np.array([f["correct"] for f in frames])
     x = {k: np.nan_to_num(np.array([f[k] for f in frames]), nan=0.0)
          for k in FEATURES + ("confidence",)}
@@ -89,7 +89,7 @@ def grid(frames: list[dict], min_inliers: int, shipped: tuple) -> None:
                 & (x["confidence"] >= conf))
 
     rows = []
-    for t in itertools.product((2, 3, 4, 5), (0.5, 0.55, 0.6, 0.65, 0.7), (0.1, 0.2, 0.3),
+    for t in itertools.product([k for k in (2, 3, 4, 5) if k >= min_objects], (0.5, 0.55, 0.6, 0.65, 0.7), (0.1, 0.2, 0.3),
                                (0.5, 0.6, 0.7, 0.8, 1.0), (0.1, 0.2, 0.3), (0.0, 0.5, 0.8, 0.9, 0.95)):
         acc = accepted(*t)
         rows.append((int((acc & ~ok).sum()), -int((acc & ok).sum()), *t))
@@ -128,21 +128,29 @@ def main() -> None:
     p.add_argument("dirs", nargs="+")
     p.add_argument("--register", nargs="*", default=[], help="bench-register result folders")
     p.add_argument("--held-out", nargs="*", default=["scene0005"])
+    p.add_argument("--refit", action="store_true",
+                   help="judge the grid's minimum confidence with the weights fitted here")
+    p.add_argument("--min-objects", type=int, default=2, help="grid rows with fewer objects are not shown")
     args = p.parse_args()
     frames = load_frames(args.dirs, args.held_out) + load_register_rows(args.register, args.held_out)
     print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
           f"(held-out rooms {args.held_out} left out)")
+    X, y = design(frames), np.array([f["correct"] for f in frames], float)
+    w = fit_logistic(X, y)
+    p_hat = 1 / (1 + np.exp(-X @ w))
+    if args.refit:      # the grid judges the confidence the refitted weights give
+        for f, p_f in zip(frames, p_hat):
+            f["confidence"] = float(p_f)
     shipped = PipelineConfig()
     for name, modes, v in (("dense", ("dense",), shipped.pose.verdict),
-                           ("coarse and merged", ("coarse", "merged"), shipped.coarse_pose.verdict)):
+                           ("coarse", ("coarse",), shipped.coarse_pose.verdict),
+                           ("merged (published only when they agree with a confirmed link)", ("merged",),
+                            shipped.coarse_pose.verdict)):
         sel = [f for f in frames if f["mode"] in modes]
         print(f"\n{name}:")
         describe(sel)
         grid(sel, v.min_inliers, (v.min_objects, v.min_fitness, v.min_footprint_share,
-                                  v.max_ambiguity, v.min_spread, v.min_confidence))
-    X, y = design(frames), np.array([f["correct"] for f in frames], float)
-    w = fit_logistic(X, y)
-    p_hat = 1 / (1 + np.exp(-X @ w))
+                                  v.max_ambiguity, v.min_spread, v.min_confidence), args.min_objects)
     edges = np.linspace(0, 1, 11)
     idx = np.clip(np.digitize(p_hat, edges[1:-1]), 0, 9)
     ece = sum(abs(p_hat[idx == b].mean() - y[idx == b].mean()) * (idx == b).sum()

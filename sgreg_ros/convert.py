@@ -281,6 +281,9 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
     return msg
 
 
+MAX_LINK_M = 1e4    # maps are refused beyond 10 km too (sgreg_core/maps/instance_map.py)
+
+
 @dataclass
 class Result:
     """What the merger takes from a RegistrationResult of any agent."""
@@ -303,6 +306,8 @@ def result_from_msg(msg: RegistrationResult) -> Result:
     T = transform_from_msg(msg.transform)
     if not np.isfinite(T).all() or not np.isfinite(msg.confidence):
         raise ConversionError("NaN or inf in the transform or the confidence")
+    if np.abs(T[:3, 3]).max() > MAX_LINK_M:
+        raise ConversionError(f"a link of more than {MAX_LINK_M:g} m")
     pairs = np.asarray(msg.inlier_node_pairs, np.int64)
     if pairs.size % 2:
         raise ConversionError("inlier_node_pairs holds an odd number of ids")

@@ -27,10 +27,11 @@ def add_arguments(p):
 
 def vocabulary(scans: str | None = None) -> list[str]:
     from sgreg_core.net.text import normalize_label
-    from sgreg_core.simulation.noise import PARAPHRASES
+    from sgreg_core.simulation.noise import CONFUSIONS, INVENT_LABELS, PARAPHRASES
     from sgreg_core.simulation.synth.objects import KINDS
 
     labels = set(NYU40) | set(PARAPHRASES) | {x for alts in PARAPHRASES.values() for x in alts}
+    labels |= set(CONFUSIONS) | {x for alts in CONFUSIONS.values() for x in alts} | set(INVENT_LABELS)
     for kind in KINDS.values():
         labels |= {kind.nyu40, *kind.names}
     if scans:

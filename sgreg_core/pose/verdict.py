@@ -63,7 +63,7 @@ class VerdictConfig:
     min_inliers: int = 8
     min_objects: int = 3
     min_spread: float = 0.2
-    min_fitness: float = param(0.6, "after ICP, the share of the peer's points over the own "
+    min_fitness: float = param(0.5, "after ICP, the share of the peer's points over the own "
                                "footprint that must lie on own surfaces to verify", 0.05, 1.0)
     min_footprint_share: float = 0.2
     max_ambiguity: float = 0.5
@@ -71,7 +71,7 @@ class VerdictConfig:
                                   "confidence (P(right | evidence))", 0.0, 1.0)
     competitor_m: float = 1.0
     competitor_deg: float = 10.0
-    confidence_weights: tuple[float, ...] = (-9.601, 2.138, 13.403, -2.878, -2.265, 2.127)
+    confidence_weights: tuple[float, ...] = (-13.206, 2.535, 14.973, -0.543, -2.353, 1.368)
 
 
 @dataclass

@@ -55,6 +55,10 @@ from .messages import DenseRequestMessage, Estimate, GraphMessage
 @dataclass
 class PeersConfig:
     """min_node_matches: node matches needed before asking a peer for dense data.
+    max_request_nodes: a dense request names at most this many of the peer's nodes, those of
+        its most confident node matches: point matching and the peer's shape features cost per
+        node, and a few dozen objects fix a pose (in a building's 200-node maps this keeps a
+        dense estimate near a second and the answer small).
     min_request_interval_s: at most one dense request per peer per this interval once a link to
         it is confirmed. A request goes out only when either map changed since the last
         answered exchange: the same two graphs give the same dense estimate, so asking again
@@ -97,6 +101,8 @@ class PeersConfig:
         that land on the agent's footprint to lie on its surfaces (pose/verify.py)."""
 
     min_node_matches: int = param(3, "node matches needed before a dense request", 1, 1000, live=True)
+    max_request_nodes: int = param(48, "a dense request asks for the points of at most this many "
+                                   "of the peer's nodes (its best matched)", 3, 100_000, live=True)
     min_request_interval_s: float = param(5.0, "at most one dense request per peer per interval once "
                                           "a link to it is confirmed", 0.0, 3600.0, live=True)
     search_request_interval_s: float = param(2.0, "the request interval while no link to the peer "
@@ -295,10 +301,9 @@ class Peers:
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
         reg = register_features(self.model, peer, self.agent.features, msg.points,
                                 self._own_reference(msg.points), self._dense_cfg, timings)
-        # a dense answer holds only the requested nodes: name the peer's map by its coarse graph
-        same_map = link.coarse is not None and link.coarse.map_sequence == msg.map_sequence
-        peer_digest = link.coarse.digest if same_map else msg.digest
-        return self._judge(link, reg, peer_digest, timings, t0, dense=msg)
+        # the evidence is the requested nodes' content: two answers with the same content are
+        # the same data, whatever the peer's map sequence says or holds elsewhere
+        return self._judge(link, reg, msg.digest, timings, t0, dense=msg)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Requests the interval held back, retries of unanswered ones (with back-off), and
@@ -542,8 +547,12 @@ class Peers:
         """Wish for the points of the peer's matched nodes, and ask now if allowed (else on_tick
         asks once the interval has passed)."""
         if reg.node_matches >= self.cfg.min_node_matches:
-            # the peer's graph is the source of the estimate
-            link.wanted = ((self.agent.digest, link.coarse.digest), np.unique(reg.node_pairs[:, 0]))
+            # the peer's graph is the source of the estimate; its best matched nodes first
+            order = np.argsort(-reg.node_scores, kind="stable")
+            ids = reg.node_pairs[order, 0]
+            _, first = np.unique(ids, return_index=True)
+            best = ids[np.sort(first)][: self.cfg.max_request_nodes]
+            link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
         return self._send_wanted(link, now)
 
     def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
@@ -556,7 +565,8 @@ class Peers:
             return None
         interval = (self.cfg.min_request_interval_s if link.confirmed is not None
                     else self.cfg.search_request_interval_s)
-        if link.confirmed is not None and link.peer_id in self.attached:
+        if link.confirmed is not None and link.dense_cloud is not None and link.peer_id in self.attached:
+            # settled: a placed peer whose points are at hand (dropped when its map moved)
             interval = max(interval, self.cfg.attached_request_interval_s)
         if now - link.last_request_at < interval:
             return None

@@ -72,3 +72,29 @@ def test_bad_config():
         generate_scene(0, SynthConfig(kind="castle"))
     with pytest.raises(ValueError):
         generate_scene(0, SynthConfig(rooms=0))
+
+
+def test_a_building_floor_has_runs_of_identical_rooms():
+    from sgreg_core.maps.scene_graph import build_scene_graph
+    from sgreg_core.simulation.synth.layout import building
+
+    # the layout: a corridor, then rooms in runs of three that share one template
+    rooms, templates = building(14, np.random.default_rng(5), run=3)
+    assert len(rooms) == 15 and rooms[0].rtype == "corridor" and templates[0] == -1
+    assert templates[1:4] == [templates[1]] * 3 and templates[4] != templates[1]
+    # generate_scene draws that layout first from the same seed
+    scene = generate_scene(5, SynthConfig(kind="building", rooms=14))
+    graph = build_scene_graph(scene)
+    assert graph.num_nodes >= 300 and int((~graph.structural).sum()) >= 250
+
+    def content(room):
+        inside = ((graph.centers[:, 0] > room.x0) & (graph.centers[:, 0] < room.x1)
+                  & (graph.centers[:, 1] > room.y0) & (graph.centers[:, 1] < room.y1) & ~graph.structural)
+        offsets = graph.centers[inside, :2] - [room.x0, room.y0]
+        order = np.lexsort((offsets[:, 1], offsets[:, 0], np.array(graph.labels)[inside]))
+        return np.array(graph.labels)[inside][order], offsets[order]
+
+    (la, oa), (lb, ob), (lc, oc) = content(rooms[1]), content(rooms[2]), content(rooms[4])
+    assert len(la) >= 5 and list(la) == list(lb), "rooms of one run hold other objects"
+    assert np.abs(oa - ob).max() < 0.15, "rooms of one run hold them elsewhere"      # point sampling only
+    assert list(la) != list(lc) or np.abs(oa - oc).max() > 0.5, "rooms of other runs are copies too"

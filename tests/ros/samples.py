@@ -34,6 +34,8 @@ def coarse_graph(rng, n_nodes=40, dim=96):
     g.sequence = int(rng.integers(0, 2**32))
     g.map_sequence = int(rng.integers(0, 2**32))
     g.weights_id = "0123456789ab"
+    q = rng.normal(size=4)
+    g.level.x, g.level.y, g.level.z, g.level.w = (q / np.linalg.norm(q)).tolist()
     g.node_ids = rng.integers(0, 2**32, n_nodes, dtype=np.uint64).tolist()
     g.centers = rng.normal(size=3 * n_nodes).astype(np.float32).tolist()
     g.extents = rng.random(3 * n_nodes).astype(np.float32).tolist()
@@ -95,6 +97,9 @@ def registration_result(rng):
     r.timing_ms = rng.random(3).astype(np.float32).tolist()
     r.counter_names = ["duplicate_sequence", "rejected_weights"]
     r.counter_values = [3, 1]
+    r.inlier_node_pairs = rng.integers(0, 2**32, 24, dtype=np.uint64).tolist()
+    r.key_id, r.signed_ns = "0123456789abcdef", int(rng.integers(0, 2**62))
+    r.signature = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()
     return r
 
 

@@ -5,12 +5,13 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.serialization import serialize_message
-from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap
+from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 
 from sgreg_core.net.model import load_model
 from sgreg_core.net.testing import moved_graph, toy_graph
 from sgreg_core.geometry import yaw_transform
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.merge import Merger, MergeConfig
 from sgreg_core.runtime.messages import DenseRequestMessage
 from sgreg_core.runtime.peers import Peers, PeersConfig
 from sgreg_ros import convert, qos
@@ -36,11 +37,15 @@ def valid_messages(a, b):
     """One valid serialized message of each type, as the nodes send them."""
     maps, _ = agent_maps(["a"], seed=1)
     dense = convert.dense_to_msg(b.dense_message(1, None, "a", 1), 1)
+    peers = Peers(PeersConfig(), b, b.model, log=lambda s: None)
+    _, req = peers.on_coarse(a.coarse_message(1), now=0.0)
+    estimate = peers.on_dense(a.dense_message(1, req.node_ids, "b", req.sequence), now=0.5)
     request = convert.request_to_msg(DenseRequestMessage("a", "b", 1, 1, a.weights_id, np.arange(4)), 0.0)
     return {InstanceMap: serialize_message(convert.instance_map_to_msg(maps["a"], "a", 1, 0.0)),
             CoarseGraph: serialize_message(convert.coarse_to_msg(b.coarse_message(1), 1)),
             DenseGraph: serialize_message(dense),
-            DenseRequest: serialize_message(request)}
+            DenseRequest: serialize_message(request),
+            RegistrationResult: serialize_message(convert.result_to_msg(estimate, "b", 1, 0.0, {"x": 1}))}
 
 
 def mutate(raw: bytes, rng) -> bytes:
@@ -60,7 +65,8 @@ def mutate(raw: bytes, rng) -> bytes:
 
 
 FROM_MSG = {InstanceMap: convert.instance_map_from_msg, CoarseGraph: convert.coarse_from_msg,
-            DenseGraph: convert.dense_from_msg, DenseRequest: convert.request_from_msg}
+            DenseGraph: convert.dense_from_msg, DenseRequest: convert.request_from_msg,
+            RegistrationResult: convert.result_from_msg}
 
 
 def test_decoders_and_cores_never_throw_on_mutated_messages(cores):
@@ -69,6 +75,7 @@ def test_decoders_and_cores_never_throw_on_mutated_messages(cores):
     peers = Peers(PeersConfig(), a, model, log=lambda s: None)
     peers.on_coarse(b.coarse_message(1), now=0.0)
     peers.links["b"].asked = [1]         # so that mutated answers reach the checks behind it
+    merger = Merger(MergeConfig(), "a")
     reached = dict.fromkeys(FROM_MSG, 0)
     refused = 0
     for cls, raw in valid_messages(a, b).items():
@@ -89,6 +96,10 @@ def test_decoders_and_cores_never_throw_on_mutated_messages(cores):
                 peers.on_dense(value, now=float(core_runs))
             elif cls is DenseRequest:
                 b.answer_request(value, now=float(core_runs))
+            elif cls is RegistrationResult:
+                merger.take(value.agent, value.peer, value.T, value.verified, value.reason, value.link,
+                            value.confidence, value.stamp)
+                merger.update(float(core_runs))
             else:
                 a.take_map(value, 100 + core_runs, 0.0)
     assert refused > MUTANTS // 4            # the mutations do break messages ...

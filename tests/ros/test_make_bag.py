@@ -56,3 +56,35 @@ def test_make_bag_refuses_bad_input(tmp_path):
     out = subprocess.run(SGREG + ["make-bag", str(tmp_path / "nope"), "--out", str(tmp_path / "bag")],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and "Traceback" not in out.stderr
+
+
+def test_make_bag_with_three_agents_and_its_view(tmp_path):
+    scene, bag, png = tmp_path / "scene", tmp_path / "bag", tmp_path / "view.png"
+    subprocess.run(SGREG + ["synth", str(scene), "--seed", "3", "--rooms", "2"], check=True,
+                   capture_output=True, timeout=120)
+    out = subprocess.run(SGREG + ["make-bag", str(scene), "--out", str(bag), "--seed", "1", "--agents", "3",
+                                  "--voxel", "0.1", "--random-start"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    gt = json.loads((bag / "ground_truth.json").read_text())
+    assert set(gt["T_scene_map"]) == set(gt["objects"]) == set(gt["agents"]) == {"a", "b", "c"}
+    with Reader(bag) as r:
+        assert {c.topic for c in r.connections} >= {f"/{x}/mapping/instances" for x in "abc"}
+        last = {}
+        for conn, _, raw in r.messages():
+            if conn.topic.endswith("instances"):
+                msg = deserialize_message(bytes(raw), InstanceMap)
+                last[msg.agent_id] = instance_map_from_msg(msg).points
+    # where the maps overlap, each agent's lies on the others' once placed by the ground truth
+    world = {x: transform_points(np.asarray(gt["T_scene_map"][x]), last[x]) for x in "abc"}
+    for x in "bc":
+        others = cKDTree(np.concatenate([world[y] for y in "abc" if y != x]))
+        near = (others.query(world[x])[0] < 0.1).mean()
+        near_unplaced = (others.query(last[x])[0] < 0.1).mean()
+        assert near > 0.3 and near > 3 * near_unplaced
+    view = subprocess.run(SGREG + ["view", str(bag), "--png", str(png)], capture_output=True, text=True,
+                          timeout=120)
+    assert view.returncode == 0, view.stderr
+    assert "3 agents" in view.stdout and "ground truth" in view.stdout and png.stat().st_size > 20_000
+    refused = subprocess.run(SGREG + ["make-bag", str(scene), "--out", str(tmp_path / "x"), "--agents", "1"],
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "agents" in refused.stderr and "Traceback" not in refused.stderr
