@@ -32,8 +32,9 @@ def _color(rgb, a: float = 1.0) -> ColorRGBA:
 
 def graph_markers(view: GraphView, frame: str, stamp, ns: str = "graph") -> list[Marker]:
     """A translucent box per node coloured by its label, its label as text, and the edges."""
-    out = [_marker(ns, 0, Marker.DELETEALL, frame, stamp)]
-    out[0].action = Marker.DELETEALL      # nodes that disappeared since the last view go
+    clear = _marker("", 0, Marker.CUBE, frame, stamp)
+    clear.action = Marker.DELETEALL       # an empty namespace: every marker of the last view goes
+    out = [clear]
     for k, (c, e, rgb, label) in enumerate(zip(view.centers, view.extents, view.colors, view.labels)):
         box = _marker(f"{ns}/nodes", k, Marker.CUBE, frame, stamp)
         box.pose.position = _point(c)

@@ -163,11 +163,13 @@ class RegistrationNode(SgregNode):
         why = convert.take_instance_map(raw, self.peers.take_own_map, self.agent.refuse)
         self.map_taken(why)
         if why is None:
+            self.merger.set_level(self.name, self.agent.level.R)
             self.guarded("the own map's estimates", lambda: self.publish_all(self.peers.on_own_map(time.monotonic())))
 
     def on_coarse(self, raw: bytes, peer: str) -> None:
         graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse", peer)
         if graph is not None:
+            self.merger.set_level(peer, graph.level)
             self.guarded(f"coarse graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish_all([self.peers.on_coarse(graph, time.monotonic())]))
 
@@ -201,6 +203,9 @@ class RegistrationNode(SgregNode):
                          result.link, result.confidence, result.stamp)
 
     def on_merge(self) -> None:
+        self.guarded("the merge", self._merge)
+
+    def _merge(self) -> None:
         """Merge every agent's links; /tf gets the attached agents' maps in the merged frame."""
         for line in self.merger.update(self.now()):
             self.get_logger().info(line)
@@ -210,7 +215,8 @@ class RegistrationNode(SgregNode):
         self.agent.counters["agents_attached"] = len(result.attached)
         self.agent.counters["links_rejected"] = len(result.rejected)
         if len(result.attached) > 1:
-            self.tf_pub.publish(convert.tf_msg(result.poses, self.merger.cfg.merged_frame, self.now()))
+            self.tf_pub.publish(convert.tf_msg(self.merger.raw_poses(), self.merger.cfg.merged_frame,
+                                               self.now()))
 
     def on_tick(self) -> None:
         now = time.monotonic()
@@ -272,19 +278,23 @@ class RegistrationNode(SgregNode):
         self.merger.take(self.name, estimate.peer_id, estimate.T, estimate.verified, estimate.reason,
                          estimate.link, estimate.confidence, estimate.stamp)
         if estimate.verified:
-            self.matches[estimate.peer_id] = estimate.registration.inlier_node_pairs()[:, ::-1]
-        if estimate.verified:
             self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, estimate.stamp))
+            self.matches[estimate.peer_id] = estimate.registration.inlier_node_pairs()[:, ::-1]
+        elif estimate.link != "confirmed":      # withdrawn: its matches are no longer shown
+            self.matches.pop(estimate.peer_id, None)
 
     # ---- views ---------------------------------------------------------------------------
     def publish_markers(self) -> None:
+        self.guarded("the markers", self._markers)
+
+    def _markers(self) -> None:
         """The own scene graph (in <id>/map) and, in the merged frame, the node matches of every
         verified link whose two ends it places."""
         if not self.agent.ready:
             return
         stamp = self.get_clock().now().to_msg()
         out = markers.graph_markers(views.graph_view(self.agent.graph), f"{self.name}/map", stamp)
-        poses, frame = self.merger.result.poses, self.merger.cfg.merged_frame
+        poses, frame = self.merger.raw_poses(), self.merger.cfg.merged_frame
         own = views.centers_in_map(self.agent.graph.node_ids, self.agent.graph.centers, self.agent.level)
         for k, (peer, pairs) in enumerate(sorted(self.matches.items())):
             link = self.peers.links.get(peer)
@@ -297,9 +307,12 @@ class RegistrationNode(SgregNode):
         self.marker_pub.publish(markers.markers_msg(out))
 
     def publish_cloud(self) -> None:
+        self.guarded("the merged cloud", self._cloud)
+
+    def _cloud(self) -> None:
         """Every map this agent knows of in the merged frame: its own, and the points of each
         placed peer's last dense answer."""
-        poses = self.merger.result.poses
+        poses = self.merger.raw_poses()
         if not self.agent.ready or self.name not in poses:
             return
         clouds = {self.name: views.points_in_map(self.agent.own_cloud(), self.agent.level)}

@@ -83,7 +83,9 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
 
     def record(agent: str, est, now: float) -> None:
         if est is not None:
-            for m in mergers.values():       # every agent hears every agent's results
+            for m in mergers.values():       # every agent hears every agent's results (and graphs)
+                m.set_level(agent, agents[agent].level.R)
+                m.set_level(est.peer_id, agents[est.peer_id].level.R)
                 m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, now)
             records.append(ResultRecord(t=now, agent=agent, peer=est.peer_id, T=est.T,
                                         verified=est.verified, mode=est.mode, reason=est.reason,

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .baselines import BASELINES, BaselineConfig
+from ..geometry import invert_transform
 from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success,
                        rre, rte)
 from ..pose import ReferenceCloud
@@ -90,12 +91,18 @@ def _score(case: Case, method: str, T: np.ndarray, claimed: bool, time_ms: float
     return row
 
 
+def _level_T(level) -> np.ndarray:
+    return np.eye(4) if level is None else level.T
+
+
 def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
-               cfg: BenchConfig) -> dict:
+               cfg: BenchConfig, levels: tuple = (None, None)) -> dict:
     row = _score(case, method, reg.T, reg.success, reg.timing_ms["total"], cpu_ms, cfg.max_rmse)
     nodes = node_match_scores(reg.node_pairs, case.gt_node_pairs, case.gt_iou, cfg.min_iou)
     nan = float("nan")
     has_gt = case.T_gt is not None
+    # correspondences are between the levelled graphs: so is the truth they are scored against
+    T_gt = None if not has_gt else (_level_T(levels[1]) @ case.T_gt @ invert_transform(_level_T(levels[0])))
     row.update(reason=reg.reason, node_matches=reg.node_matches, gt_node_matches=nodes.ground_truth,
                node_recall=nodes.recall if has_gt else nan,
                node_precision=nodes.precision if has_gt else nan,
@@ -104,11 +111,11 @@ def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
                fitness=reg.fitness, footprint_fitness=reg.footprint_fitness,
                confidence=reg.confidence, ambiguity=reg.evidence.ambiguity,
                # share of the correspondences that are right (before pose estimation)
-               inlier_ratio=(inlier_ratio(reg.corr.src_xyz, reg.corr.ref_xyz, case.T_gt, cfg.inlier_threshold)
+               inlier_ratio=(inlier_ratio(reg.corr.src_xyz, reg.corr.ref_xyz, T_gt, cfg.inlier_threshold)
                              if has_gt and reg.correspondences else nan),
                # share of what the estimator kept as inliers that is right
                pseudo_inlier_ratio=(inlier_ratio(reg.corr.src_xyz[reg.inlier_mask],
-                                                 reg.corr.ref_xyz[reg.inlier_mask], case.T_gt,
+                                                 reg.corr.ref_xyz[reg.inlier_mask], T_gt,
                                                  cfg.inlier_threshold)
                                     if has_gt and reg.inlier_mask.any() else nan))
     row.update({f"ms_{k}": float(v) for k, v in reg.timing_ms.items()})
@@ -126,7 +133,7 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
     if "sgreg_dense" in cfg.methods:
         reg = register_graphs(model, src_graph, ref_graph, replace(cfg.pipeline, mode="dense"),
                               timings)
-        rows.append(_sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg))
+        rows.append(_sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg, (src_graph.level, ref_graph.level)))
     if "sgreg_coarse" in cfg.methods:
         # a coarse message carries what encode(dense=False) gives; only matching + pose timed
         src, ref = model.encode(src_graph, dense=False), model.encode(ref_graph, dense=False)
@@ -138,7 +145,7 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
         cpu0 = time.process_time()
         reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, coarse),
                             src_graph.level, ref_graph.level)
-        rows.append(_sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg)
+        rows.append(_sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg, (src_graph.level, ref_graph.level))
                     | {"ms_map_prep": prep_ms})
     return rows
 

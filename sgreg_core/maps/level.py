@@ -136,8 +136,9 @@ def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levell
         cos_up = np.abs(normals @ up)
         horizontal = normals[cos_up >= np.cos(np.radians(cone))]
         vertical = normals[cos_up <= np.sin(np.radians(cone))]
-        if len(horizontal) + len(vertical) < cfg.min_points // 4:
-            return Levelling(ok=False, reason="no horizontal or vertical surfaces to find gravity")
+        if len(horizontal) < cfg.min_points // 10 or len(horizontal) + len(vertical) < cfg.min_points // 4:
+            # walls alone leave gravity free to turn about their common direction
+            return Levelling(ok=False, reason="too few horizontal surfaces (floor, tables) to find gravity")
         M = np.zeros((3, 3))
         if len(horizontal):
             M += horizontal.T @ horizontal / len(horizontal)
@@ -146,8 +147,8 @@ def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levell
         new = np.linalg.eigh(M)[1][:, -1]
         up = new if new @ up >= 0 else -new
     tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
-    if tilt > cfg.max_tilt_deg:
-        return Levelling(up=up, tilt_deg=tilt, ok=False,
+    if tilt > cfg.max_tilt_deg:     # left as it is: up stays z, as R says
+        return Levelling(tilt_deg=tilt, ok=False,
                          reason=f"estimated tilt {tilt:.1f} deg over max_tilt_deg; left as it is")
     if tilt < cfg.min_tilt_deg:
         return Levelling(up=up, tilt_deg=tilt)

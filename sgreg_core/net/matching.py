@@ -6,8 +6,9 @@ descriptor is what a coarse message carries), so matching itself needs no weight
 
 Points: for every matched node pair at once, S_p = s * cos(Z_i, Z_j) with a learnable scale s
 (unit-norm point features learn much faster than raw dot products here), padded with a
-learnable dustbin row/column and solved as optimal transport by log-domain Sinkhorn; mutual
-top-k entries above a threshold are the point correspondences.
+learnable dustbin row/column and solved as optimal transport by Sinkhorn (in the log domain
+while training, on scaling vectors at inference: the same iterations, several times faster);
+mutual top-k entries above a threshold are the point correspondences.
 
 Public API:
     MatchConfig
@@ -38,7 +39,7 @@ class MatchConfig:
     """d_match:         node descriptor size (what a coarse message carries per node).
     node_threshold:  minimum dual-softmax confidence A_ij of a node match.
     node_topk:       a node match must be in the top-k of its row and of its column.
-    sinkhorn_iters:  Sinkhorn iterations (log domain).
+    sinkhorn_iters:  Sinkhorn iterations (log domain in training, scaling vectors at inference).
     point_threshold: minimum transport mass (rows sum to 1) of a point correspondence.
     point_topk:      mutual top-k for point correspondences."""
 
@@ -87,7 +88,9 @@ def log_optimal_transport(scores: torch.Tensor, valid_src: torch.Tensor, valid_r
     log_mu = torch.cat([norm.expand(-1, n_src).masked_fill(~valid_src, LOG_ZERO), count_ref.log() + norm], 1)
     log_nu = torch.cat([norm.expand(-1, n_ref).masked_fill(~valid_ref, LOG_ZERO), count_src.log() + norm], 1)
 
-    if not torch.is_grad_enabled():
+    valid = couplings > LOG_ZERO / 2
+    spread = (couplings.masked_fill(~valid, -math.inf).amax() - couplings.masked_fill(~valid, math.inf).amin())
+    if not torch.is_grad_enabled() and float(spread) < 60.0:   # exp stays well inside float32
         return _sinkhorn_scaling(couplings, log_mu, log_nu, iters) - norm.unsqueeze(2)
     u, v = torch.zeros_like(log_mu), torch.zeros_like(log_nu)
     for _ in range(iters):
@@ -101,8 +104,10 @@ def _sinkhorn_scaling(couplings: torch.Tensor, log_mu: torch.Tensor, log_nu: tor
     """The same iterations as the log-domain loop, on scaling vectors a = e^u, b = e^v: two
     batched mat-vecs per iteration instead of two logsumexps over the whole (B, K+1, K+1)
     tensor (about 10x faster on a CPU). Without gradients only: the scores are bounded
-    (cosines times a learnt scale), and shifting each batch by its maximum keeps exp finite;
-    the shift cancels in a_i K_ij b_j."""
+    (cosines times a learnt scale: about 18 with the shipped weights), shifting each batch by
+    its maximum keeps exp finite, and the caller falls back to the log domain when the scores
+    spread over more than 60 (e^-60 is still far above float32's smallest normal); the shift
+    cancels in a_i K_ij b_j."""
     c = couplings - couplings.amax(dim=(1, 2), keepdim=True)
     K = c.exp()
     mu, nu = log_mu.exp(), log_nu.exp()

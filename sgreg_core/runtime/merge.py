@@ -5,34 +5,41 @@ alone never bend a map into another: one wrong link would, so before any pose is
 links are checked against each other around cycles. Each agent runs the same deterministic
 steps on the same links, so all of them publish the same tree:
 
-1. One measurement per directed link: the latest verified T_a^b of agent a for peer b, as a
-   4-DoF transform (yaw and translation: the maps are gravity aligned). A link whose owner says
-   it is no longer confirmed (withdrawn, contradicted) is dropped.
-2. Consistency: a measurement's support is the number of short cycles (a -> b measured both
-   ways, or a triangle a -> b -> c) it closes within cycle_m / cycle_deg. Measurements are
-   taken in order of support, then confidence; one joins the accepted set when it connects two
-   groups of agents, or when it agrees with the path the accepted set already gives between its
-   ends. Otherwise it breaks the cycles it is in and is rejected, with the reason. A wrong link
-   in a cycle of right ones closes no consistent cycle, so it comes after them and is refused;
-   a link in no cycle (a bridge) cannot be checked and is kept, as the pair's own verdict and
-   confirmation already are.
-3. Poses: the anchor (the lowest agent id of its group) is the merged frame; every other
-   agent's pose is the confidence-weighted average over all its accepted measurements of
-   (neighbour pose o measurement), iterated to a fixed point (circular mean for yaw), so a map
-   reached by several paths sits where they agree best.
+1. One measurement per directed link: the latest verified T_a^b of agent a for peer b, taken
+   between the two agents' levelled frames (each map levelled on its own floor and walls,
+   maps/level.py; Merger.take converts with the levellings it was given), so that it is a
+   4-DoF transform (yaw and translation). A link whose owner says it is no longer confirmed
+   (withdrawn, contradicted) is dropped.
+2. Consistency: a measurement's support is the number of short cycles it closes within
+   cycle_m / cycle_deg: the same pair measured the other way, and triangles a -> c -> b through
+   a third agent. When the two agents of a pair disagree and no third agent's links decide,
+   neither link is kept (two maps cannot tell which of their two estimates is wrong). The
+   others are taken in order of support, then confidence; one joins the accepted set when it
+   connects two groups of agents, or when it agrees with the path the accepted set already
+   gives between its ends. Otherwise it breaks the cycles it is in and is rejected, with the
+   reason. A wrong link in a cycle of right ones closes no consistent cycle, so it comes after
+   them and is refused; a link in no cycle (a bridge) cannot be checked and is kept, as the
+   pair's own verdict and confirmation already are.
+3. Poses: the merged frame is the levelled frame of the anchor, the lowest agent id of the
+   largest group (so a lone agent with a low id cannot hide the fleet); every other agent's
+   pose is the confidence-weighted average over all its accepted measurements of (neighbour
+   pose o measurement), iterated to a fixed point (circular mean for yaw), so a map reached by
+   several paths sits where they agree best. Published poses compose the agent's levelling:
+   T_merged<-map = T_merged<-levelled R.
 
-Agents that no accepted path joins to the lowest agent id present are not attached; they form
-groups of their own, reported but not placed in the merged frame.
+Agents that no accepted path joins to the anchor are not attached; they form groups of their
+own, reported but not placed in the merged frame.
 
 Public API:
     MergeConfig
     Link                      one verified T_src^dst with its confidence and stamp
-    MergeResult               poses (agent -> 4x4 T_merged<-agent), attached, groups,
-                              accepted / rejected links (rejected: link, reason)
+    MergeResult               poses (agent -> 4x4 T_merged<-levelled agent), attached, groups,
+                              accepted / rejected links (rejected: link, reason), disputed
+                              (links the cycles through a third agent reject)
     merge(links, agents, cfg) -> MergeResult
     Links                     the latest link state per directed pair, fed with results
-    Merger                    one agent's merger: Links + merge + what changed + which peers
-                              need no more dense data
+    Merger                    one agent's merger: levellings + Links + merge + what changed +
+                              which peers need no more dense data, which links are disputed
     to_4dof(T) -> (yaw, t) / from_4dof(yaw, t) -> 4x4
 """
 from __future__ import annotations
@@ -107,12 +114,13 @@ class Link:
 
 @dataclass
 class MergeResult:
-    poses: dict[str, np.ndarray]          # attached agent -> T_merged<-agent (4-DoF)
+    poses: dict[str, np.ndarray]          # attached agent -> T_merged<-agent's levelled frame (4-DoF)
     anchor: str | None
     attached: list[str]
     groups: list[list[str]]               # every agent, by connected group (anchor's first)
     accepted: list[Link]
     rejected: list[tuple[Link, str]]      # (link, one-line reason)
+    disputed: set = field(default_factory=set)   # keys of rejected links a third agent's links contradict
 
     def to_json(self) -> dict:
         return {"anchor": self.anchor, "attached": self.attached, "groups": self.groups,
@@ -121,13 +129,13 @@ class MergeResult:
                 "poses": {a: np.round(T, 6).tolist() for a, T in self.poses.items()}}
 
 
-def _support(links: list[Link], cfg: MergeConfig) -> dict[tuple[str, str], int]:
-    """Per link, the consistent short cycles it closes: the same pair measured the other way
-    (or twice), and triangles through a third agent."""
+def _support(links: list[Link], cfg: MergeConfig) -> tuple[dict, dict]:
+    """Per link, the consistent short cycles it closes: ({key: 1 when the pair's other
+    measurement agrees}, {key: consistent triangles through a third agent})."""
     by_pair = defaultdict(list)
     for l in links:
         by_pair[frozenset(l.key)].append(l)
-    support = dict.fromkeys((l.key for l in links), 0)
+    pair, triangles = dict.fromkeys((l.key for l in links), 0), dict.fromkeys((l.key for l in links), 0)
     agents = sorted({a for l in links for a in l.key})
 
     def measurements(a: str, b: str) -> list[np.ndarray]:
@@ -136,17 +144,13 @@ def _support(links: list[Link], cfg: MergeConfig) -> dict[tuple[str, str], int]:
 
     for l in links:
         a, b = l.key
-        for other in by_pair[frozenset(l.key)]:
-            if other is not l and _consistent(l.T, other.towards(b), cfg):
-                support[l.key] += 1
+        pair[l.key] = int(any(o is not l and _consistent(l.T, o.towards(b), cfg)
+                              for o in by_pair[frozenset(l.key)]))
         for c in agents:
-            if c in (a, b):
-                continue
-            for T_ac in measurements(a, c):
-                for T_cb in measurements(c, b):
-                    if _consistent(l.T, T_cb @ T_ac, cfg):
-                        support[l.key] += 1
-    return support
+            if c not in (a, b):
+                triangles[l.key] += sum(_consistent(l.T, T_cb @ T_ac, cfg)
+                                        for T_ac in measurements(a, c) for T_cb in measurements(c, b))
+    return pair, triangles
 
 
 def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
@@ -172,30 +176,48 @@ def merge(links: list[Link], agents: list[str] | None = None,
     cfg = cfg or MergeConfig()
     links = sorted(links, key=lambda l: l.key)           # deterministic, whatever the arrival order
     names = sorted(set(agents or []) | {a for l in links for a in l.key})
-    support = _support(links, cfg)
-    order = sorted(links, key=lambda l: (-support[l.key], -l.confidence, l.key))
+    pair, triangles = _support(links, cfg)
+    rejected, disputed = [], set()
+    # a pair whose two measurements disagree, with no third agent's word for either: neither
+    both = defaultdict(list)
+    for l in links:
+        both[frozenset(l.key)].append(l)
+    undecided = {l.key for ls in both.values() if len(ls) == 2 and not pair[ls[0].key]
+                 and not triangles[ls[0].key] and not triangles[ls[1].key] for l in ls}
+    for l in links:
+        if l.key in undecided:
+            rejected.append((l, f"{l.src} and {l.dst} disagree about their pair and no third agent's "
+                                "links decide"))
+    order = sorted((l for l in links if l.key not in undecided),
+                   key=lambda l: (-(pair[l.key] + triangles[l.key]), -l.confidence, l.key))
     tree: dict[str, dict[str, np.ndarray]] = {a: {} for a in names}   # accepted: a -> {b: T_a^b}
-    accepted, rejected = [], []
+    accepted = []
     for l in order:
         path = _path_transform(tree, l.src, l.dst)
         if path is not None and not _consistent(l.T, path, cfg):
             dt, dyaw = _deviation(l.T, path)
             rejected.append((l, f"breaks the cycles it is in: {dt:.2f} m / {dyaw:.1f} deg from the "
-                                f"path of the accepted links (closes {support[l.key]} consistent cycles)"))
+                                f"path of the accepted links (closes {triangles[l.key]} consistent "
+                                "cycles through other agents)"))
+            # disputed by other agents' links when the path runs through them, or when the link
+            # of the same pair it contradicts is backed by a triangle
+            same_pair = [m for m in accepted if set(m.key) == set(l.key)]
+            if l.dst not in tree[l.src] or any(triangles[m.key] for m in same_pair):
+                disputed.add(l.key)
             continue
         accepted.append(l)
         if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
             tree[l.src][l.dst], tree[l.dst][l.src] = l.T, invert_transform(l.T)
     groups = _groups(names, accepted)
-    anchor = names[0] if names else None
-    attached = groups[0] if groups else []
+    attached = max(groups, key=len) if groups else []     # the largest group, the lowest id on ties
+    anchor = attached[0] if attached else None
     poses = _average(attached, anchor, [l for l in accepted if l.src in attached], cfg)
     return MergeResult(poses=poses, anchor=anchor, attached=attached, groups=groups,
-                       accepted=accepted, rejected=rejected)
+                       accepted=accepted, rejected=rejected, disputed=disputed)
 
 
 def _groups(names: list[str], accepted: list[Link]) -> list[list[str]]:
-    """Connected groups of agents under the accepted links, the lowest id's group first."""
+    """Connected groups of agents under the accepted links, ordered by their lowest id."""
     parent = {a: a for a in names}
 
     def root(a):
@@ -278,23 +300,41 @@ class Links:
 
 
 class Merger:
-    """What an agent's merger keeps: every agent's links, the last merge, and the one-line
-    news of what changed (a link rejected, an agent attached) for the log."""
+    """What an agent's merger keeps: every agent's levelling and links, the last merge, and the
+    one-line news of what changed (a link rejected, an agent attached) for the log.
+
+    set_level(agent, R): the rotation that levels agent's map (from its graph messages; the
+    identity until known). take(...): a result T_agent^peer between the maps as published,
+    kept between the levelled frames, T = R_peer T R_agent^T. raw_poses(): the merged poses
+    of the maps as they are, T_merged<-map = T_merged<-levelled R (what /tf carries)."""
 
     def __init__(self, cfg: MergeConfig, agent: str):
         self.cfg, self.agent = cfg, agent
         self.links = Links()
+        self.levels: dict[str, np.ndarray] = {}
         self.result = merge([], [agent], cfg)
+
+    def set_level(self, agent: str, R: np.ndarray) -> None:
+        self.levels[agent] = np.asarray(R, np.float64)
+
+    def _level_T(self, agent: str) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.levels.get(agent, np.eye(3))
+        return T
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
              link_state: str, confidence: float, stamp: float) -> None:
-        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp)
+        levelled = self._level_T(peer) @ np.asarray(T, np.float64) @ invert_transform(self._level_T(agent))
+        self.links.take(agent, peer, levelled, verified, reason, link_state, confidence, stamp)
+
+    def raw_poses(self) -> dict[str, np.ndarray]:
+        return {a: T @ self._level_T(a) for a, T in self.result.poses.items()}
 
     def update(self, now: float | None = None) -> list[str]:
         """Merge the current links; returns what changed since the last merge, one line each."""
         old = self.result
-        self.result = merge(self.links.current(now, self.cfg.max_link_age_s),
-                            sorted(self.links.agents | {self.agent}), self.cfg)
+        links = self.links.current(now, self.cfg.max_link_age_s)
+        self.result = merge(links, sorted({a for l in links for a in l.key} | {self.agent}), self.cfg)
         news = []
         for a in sorted(set(self.result.attached) - set(old.attached)):
             news.append(f"{a}/map attached to {self.cfg.merged_frame} (anchor {self.result.anchor})")
@@ -307,12 +347,14 @@ class Merger:
         return news
 
     def disputed_peers(self) -> set[str]:
-        """Peers whose link with this agent (either direction) the cycles rejected."""
-        return {x for l, _ in self.result.rejected if self.agent in l.key for x in l.key} - {self.agent}
+        """Peers this agent's own link to is rejected by cycles through other agents (a
+        disagreement within a pair alone disputes neither side: each link's own rules judge it)."""
+        return {l.dst for l, _ in self.result.rejected if l.src == self.agent and l.key in self.result.disputed}
 
     def settled_peers(self) -> set[str]:
         """Peers placed in this agent's merged frame whose links with it no cycle disputes:
         more dense data from them would not place them better."""
         if self.agent not in self.result.attached:
             return set()
-        return set(self.result.attached) - self.disputed_peers() - {self.agent}
+        rejected_own = {l.dst for l, _ in self.result.rejected if l.src == self.agent}
+        return set(self.result.attached) - rejected_own - {self.agent}

@@ -147,11 +147,13 @@ class _PendingRequest:
 @dataclass
 class Kept:
     """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
-    had in each map then, to notice when either map moves under them."""
+    had in each map then and the own map's levelling then, to notice when either map moves
+    under them."""
 
     corr: Correspondences
     peer_nodes: dict[int, np.ndarray]
     own_nodes: dict[int, np.ndarray]
+    own_level: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
@@ -438,7 +440,15 @@ class Peers:
 
     def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
         """Drop the kept correspondences and the peer's dense cloud when the nodes they come
-        from moved in either map since they were kept."""
+        from moved in either map since they were kept, or either map was levelled anew (they
+        are in the levelled frames of then)."""
+        relevelled = (link.dense is not None and not np.allclose(link.dense.level, msg.level, atol=1e-9)) or \
+            (link.kept is not None and not np.allclose(link.kept.own_level, self.agent.level.R, atol=1e-9))
+        if relevelled and (link.kept is not None or link.dense_cloud is not None):
+            self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
+            self._count("kept_dropped")
+            link.kept, link.dense_cloud = None, None
+            return
         if link.kept is None:
             return
         own = self.agent.features
@@ -468,7 +478,7 @@ class Peers:
             if dense is not None and reg.success and self.cfg.keep_correspondences:
                 corr, own = reg.inlier_corr(), self.agent.features
                 kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
-                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers))
+                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R)
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
             reason = self._link_rules(link, reg, hyp)

@@ -125,3 +125,53 @@ def test_the_merger_names_disputed_and_settled_peers():
     assert any("c/map attached" in line for line in news)
     assert m.disputed_peers() == {"c"} and m.settled_peers() == {"b"}
     assert m.update(3.0) == []             # nothing new the second time
+
+
+def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_nothing():
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    right, wrong = true_link("a", "b"), Link("b", "a", from_4dof(0.5, (3.0, 0.0, 0.0)) @ true_link("b", "a").T)
+    m.take("a", "b", right.T, True, "ok", "confirmed", 0.90, 1.0)
+    m.take("b", "a", wrong.T, True, "ok", "confirmed", 0.99, 1.0)
+    m.update(2.0)
+    assert m.result.attached in (["a"], ["b"]) and not m.result.accepted
+    assert {l.key for l, _ in m.result.rejected} == {("a", "b"), ("b", "a")}
+    assert m.disputed_peers() == set()            # each link's own rules judge it
+    # a third agent decides: its links agree with a -> b, so b -> a is the wrong one
+    for s_, d in (("c", "a"), ("c", "b")):
+        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 3.0)
+    m.update(4.0)
+    assert [l.key for l, _ in m.result.rejected] == [("b", "a")] and ("b", "a") in m.result.disputed
+    assert m.result.attached == ["a", "b", "c"] and m.disputed_peers() == set()
+
+
+def test_links_between_tilted_maps_are_merged_upright():
+    """Each map leans by its own gravity error: the merger takes links between the levelled
+    frames, and the published poses put the tilt back."""
+    from scipy.spatial.transform import Rotation
+
+    from sgreg_core.runtime.merge import Merger
+
+    rng = np.random.default_rng(4)
+    lean = {x: Rotation.from_rotvec(np.r_[rng.normal(size=2), 0.0] * np.radians(1.5)).as_matrix() for x in "abc"}
+    L = {x: np.eye(4) for x in "abc"}
+    for x in "abc":
+        L[x][:3, :3] = lean[x]
+    raw = {x: WORLD[x] @ L[x] for x in "abc"}    # p_world = WORLD p_levelled, p_levelled = L p_map
+    m = Merger(MergeConfig(), "a")
+    for x in "abc":
+        m.set_level(x, lean[x])
+    for s_, d in itertools.permutations("abc", 2):
+        m.take(s_, d, np.linalg.inv(raw[d]) @ raw[s_], True, "ok", "confirmed", 0.9, 1.0)
+    m.update(2.0)
+    assert not m.result.rejected and m.result.attached == ["a", "b", "c"]
+    for x, T in m.raw_poses().items():       # T_merged<-map, the merged frame a's levelled frame
+        truth = np.linalg.inv(WORLD["a"]) @ raw[x]
+        assert np.allclose(T, truth, atol=1e-6), x
+
+
+def test_the_anchor_is_the_largest_group_not_a_lone_low_id():
+    result = merge([true_link("c", "b"), true_link("d", "c")], agents=["a", "b", "c", "d"])
+    assert result.anchor == "b" and result.attached == ["b", "c", "d"]
+    assert ["a"] in result.groups

@@ -353,3 +353,15 @@ def test_a_peer_the_merged_frame_places_is_asked_for_dense_data_rarely(model, gr
         drift(b, graphs, 5, 9.0)                       # new content: worth a request, if due
         _, req = reg.on_coarse(b.coarse_message(3), now=10.0)
         assert (req is not None) == expect
+
+
+def test_kept_correspondences_go_when_the_peer_levels_its_map_anew(model, graphs):
+    from scipy.spatial.transform import Rotation
+
+    a, b, reg, logs = confirmed_link(model, graphs)
+    assert reg.links["b"].kept is not None and reg.links["b"].dense_cloud is not None
+    msg = b.coarse_message(3)
+    msg.level = Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix()    # b's gravity estimate moved
+    reg.on_coarse(msg, now=2.0)
+    assert reg.links["b"].kept is None and reg.counters["kept_dropped"] == 1
+    assert any("levelled anew" in line for line in logs)

@@ -127,6 +127,7 @@ def test_nodes_survive_a_stream_of_mutated_messages(cores, tmp_path):
         pubs = {CoarseGraph: w.publisher(CoarseGraph, "/b/sgreg/coarse", qos.COARSE),
                 DenseGraph: w.publisher(DenseGraph, "/b/sgreg/dense", qos.DENSE),
                 DenseRequest: w.publisher(DenseRequest, "/a/sgreg/dense_request", qos.DENSE_REQUEST),
+                RegistrationResult: w.publisher(RegistrationResult, "/b/sgreg/registration", qos.RESULTS),
                 InstanceMap: w.map_pubs["a"]}
         assert w.spin_until(lambda: w.node.count_subscribers("/b/sgreg/coarse") >= 1, 30)
         for cls, raw in valid_messages(a, b).items():
