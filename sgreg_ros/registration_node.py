@@ -86,6 +86,9 @@ class RegistrationNode(SgregNode):
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
+            self.peers.expected = self.merger.expected
+            self.peers.cfg = replace(self.peers.cfg, merged_tolerance=(self.merger.cfg.cycle_m,
+                                                                      self.merger.cfg.cycle_deg))
             self.tf_pub = self.create_publisher(TFMessage, "/tf", qos.TF)
             self.result_subs: dict[str, object] = {}
             self.transform_pub = self.create_publisher(TransformStamped, self.topic("sgreg/transform"), qos.RESULTS)

@@ -9,7 +9,7 @@ import sys
 NAME = "bench-scale"
 HELP = "time coarse and dense registration, message sizes and memory against graph size"
 
-COLUMNS = ("level_graph_ms", "encode_ms", "map_prep_ms", "coarse_ms", "dense_ms",
+COLUMNS = ("level_graph_ms", "encode_ms", "map_prep_ms", "coarse_ms", "dense_ms", "dense_requested_ms",
            "dense_point_match_ms", "dense_pose_gnc_ms", "dense_pose_clique_ms",
            "dense_pose_verify_ms", "dense_pose_competitor_ms")
 
@@ -43,7 +43,10 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"sgreg bench-scale: {exc}", file=sys.stderr)
         return 2
-    keys = [k for k in COLUMNS if k in rows[0]]
+    keys = [k for k in COLUMNS if any(k in r for r in rows)]   # the estimator's steps vary
+    for r in rows:
+        for k in keys:
+            r.setdefault(k, 0.0)
     print(f"\n{'nodes':>6} {'corr':>6} " + " ".join(f"{k[:-3]:>14}" for k in keys)
           + f" {'coarse kB':>10} {'dense kB':>9} {'peak MB':>8} {'ok c/d':>7}")
     for r in rows:

@@ -115,6 +115,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             log(f"{name}: {line}")
         peers_of[name].attached = mergers[name].settled_peers()
         peers_of[name].disputed = mergers[name].disputed_peers()
+        peers_of[name].expected = mergers[name].expected
         for req in peers_of[name].on_tick(now):
             _deliver(req, agents, peers_of, name, encoding, now, record)
         if not agent.coarse_due(now):

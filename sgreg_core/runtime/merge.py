@@ -330,6 +330,14 @@ class Merger:
     def raw_poses(self) -> dict[str, np.ndarray]:
         return {a: T @ self._level_T(a) for a, T in self.result.poses.items()}
 
+    def expected(self, peer: str) -> np.ndarray | None:
+        """T_agent^peer between the maps as the merged frame places them, when at least three
+        agents are in it (so that other agents' links take part), else None."""
+        poses = self.raw_poses()
+        if len(poses) < 3 or self.agent not in poses or peer not in poses:
+            return None
+        return invert_transform(poses[peer]) @ poses[self.agent]
+
     def update(self, now: float | None = None) -> list[str]:
         """Merge the current links; returns what changed since the last merge, one line each."""
         old = self.result

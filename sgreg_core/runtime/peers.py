@@ -95,6 +95,9 @@ class PeersConfig:
         graph is older than this, the estimate is made against it instead of waiting.
     kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
         nodes they come from moved by more than this (median, in either map) since.
+    merged_tolerance: (m, deg) an estimate that lies farther than this from where the merged
+        frame of three or more agents places the peer is withheld as disputed_by_cycles (the
+        merger's cycle tolerance, MergeConfig.cycle_m / cycle_deg).
     pipeline: the one registration pipeline (pipeline.PipelineConfig): dense settings for
         dense answers, coarse settings for coarse and merged estimates, ICP before the verdict.
         The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
@@ -129,6 +132,7 @@ class PeersConfig:
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
+    merged_tolerance: tuple[float, float] = (0.5, 5.0)
     quiet_peer_s: float = param(2.0, "re-estimate against a peer's last coarse graph when the own map "
                                 "changes and the peer sent none for this long", 0.1, 3600.0, live=True)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
@@ -221,6 +225,8 @@ class Peers:
         self.links: dict[str, PeerLink] = {}       # peer id -> what the agent knows of it
         self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
         self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
+        # T_agent^peer where the merged frame of three or more agents places the peer, or None
+        self.expected: Callable[[str], np.ndarray | None] = lambda peer: None
         self.counters: Counter = agent.counters     # one table per node: the agent's
         self._request_seq = 0
         self._said: set = set()
@@ -482,7 +488,7 @@ class Peers:
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
             reason = self._link_rules(link, reg, hyp)
-        if reason == "ok" and link.peer_id in self.disputed:
+        if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
         if reason != "ok":
@@ -495,6 +501,14 @@ class Peers:
         if est.verified:
             self._count("verified")
         return est
+
+    def _off_merged_frame(self, peer: str, T: np.ndarray) -> bool:
+        """Whether T disagrees with where the merged frame of three or more agents puts the
+        peer (by the cycle tolerance): a link that the next merge would reject is not published
+        in the second before it."""
+        expected = self.expected(peer)
+        tol_m, tol_deg = self.cfg.merged_tolerance
+        return expected is not None and not (rte(T, expected) < tol_m and rre(T, expected) < tol_deg)
 
     def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
         return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg

@@ -365,3 +365,14 @@ def test_kept_correspondences_go_when_the_peer_levels_its_map_anew(model, graphs
     reg.on_coarse(msg, now=2.0)
     assert reg.links["b"].kept is None and reg.counters["kept_dropped"] == 1
     assert any("levelled anew" in line for line in logs)
+
+
+def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, graphs):
+    a, b, reg, _ = confirmed_link(model, graphs)
+    truth = T_GT                                      # T_a^b: a's map into b's
+    reg.expected = lambda peer: yaw_transform(0.0, (4.0, 0.0, 0.0)) @ truth   # others put b 4 m away
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert not est.verified and est.reason == "disputed_by_cycles"
+    reg.expected = lambda peer: truth                 # the merged frame agrees
+    est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
+    assert est.verified
