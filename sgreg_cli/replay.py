@@ -64,6 +64,7 @@ class ReplayRun:
     events: list     # (t, what) e.g. a restart
     bag_end_s: float = 0.0   # when the last message was played (t of the timeline)
     tf: dict = field(default_factory=dict)   # child frame -> (parent frame, 4x4), last on /tf
+    counters: dict = field(default_factory=dict)   # agent -> its last published counter table
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -135,8 +136,11 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
     timeline = []
     t0 = time.monotonic()
 
+    counters: dict = {}
+
     def on_result(msg: RegistrationResult):
         timing = dict(zip(msg.timing_names, msg.timing_ms))
+        counters[msg.agent_id] = dict(zip(msg.counter_names, (int(v) for v in msg.counter_values)))
         records.append(ResultRecord(t=time.monotonic() - t0, agent=msg.agent_id, peer=msg.peer_id,
                                     T=transform_from_msg(msg.transform), verified=msg.verified,
                                     mode=msg.mode, reason=msg.reason, node_matches=msg.node_matches,
@@ -239,7 +243,7 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
-                     timeline=timeline, events=events, bag_end_s=bag_end, tf=tf)
+                     timeline=timeline, events=events, bag_end_s=bag_end, tf=tf, counters=counters)
 
 
 def ground_truth_of(bag: str | Path) -> dict:

@@ -296,7 +296,8 @@ class Result:
     link: str
     confidence: float
     stamp: float
-    node_pairs: np.ndarray   # (k, 2) (agent node id, peer node id)
+    node_pairs: np.ndarray
+    mode: str = ""   # (k, 2) (agent node id, peer node id)
 
 
 @decoder
@@ -313,7 +314,7 @@ def result_from_msg(msg: RegistrationResult) -> Result:
         raise ConversionError("inlier_node_pairs holds an odd number of ids")
     return Result(msg.agent_id, msg.peer_id, T, bool(msg.verified), msg.reason, msg.link,
                   float(np.clip(msg.confidence, 0.0, 1.0)), stamp_to_sec(msg.header.stamp),
-                  pairs.reshape(-1, 2))
+                  pairs.reshape(-1, 2), msg.mode)
 
 
 def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,

@@ -204,6 +204,9 @@ class RegistrationNode(SgregNode):
             return
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp)
+        if result.peer == self.name:     # the peer's own estimate of our link: a witness
+            self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode, result.reason,
+                                      time.monotonic())
 
     def on_merge(self) -> None:
         self.guarded("the merge", self._merge)

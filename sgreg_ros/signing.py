@@ -70,13 +70,16 @@ class MessageAuth:
         return None
 
 
-def _canonical(value, out: list, skip: str = "") -> None:
+def _canonical(value, out: list, skip: str = "", kind: str = "") -> None:
     """Append an unambiguous encoding of a ROS message (fields in declaration order, each
-    length-prefixed) to `out`."""
+    length-prefixed) to `out`. A float32 field is encoded as float32: the sender holds the
+    Python double it set, the receiver what survived the wire."""
     if hasattr(value, "get_fields_and_field_types"):
-        for name in value.get_fields_and_field_types():
+        for name, field_type in value.get_fields_and_field_types().items():
             if name != skip:
-                _canonical(getattr(value, name), out)
+                _canonical(getattr(value, name), out, kind=field_type)
+    elif isinstance(value, float) and kind == "float":
+        out.append(struct.pack("<cf", b"f", value))
     elif isinstance(value, str):
         data = value.encode()
         out += [struct.pack("<cQ", b"s", len(data)), data]

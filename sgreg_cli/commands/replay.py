@@ -101,6 +101,10 @@ def run(args) -> int:
          ] + [[f"node {k}", f"CPU {v['cpu_share']:.0%}, peak {v['peak_rss_mb']:.0f} MB"] for k, v in run_.processes.items()]
     if run_.corrupted:
         rows.append(["corrupted bag messages skipped", str(len(run_.corrupted))])
+    refused = {a: c for a, c in report["refused_from_fleet"].items() if c}
+    if refused:
+        rows.append(["fleet messages refused (a bug: see the node logs)",
+                     "; ".join(f"{a}: {c}" for a, c in sorted(refused.items()))])
     print(format_table(["replay", "value"], rows))
     last = {}
     for r in run_.records:

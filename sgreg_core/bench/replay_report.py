@@ -9,6 +9,11 @@ from .bandwidth import per_agent_rate
 
 PAPER_SUCCESS_RATE = 0.324   # SG-Reg T-RO 2025, two-agent success rate (different data)
 PAPER_KB_PER_FRAME = 52.0
+# refusals of the fleet's own messages that an honest replay never earns (a corrupted bag
+# message is the agent's own input, counted elsewhere): any of them means a bug
+FLEET_REFUSALS = ("unsigned", "bad_signature", "unknown_key", "key_not_agents", "stale_message",
+                  "replayed", "agent_mismatch", "rejected_weights", "bad_feature_size", "bad_nodes",
+                  "bad_level", "invalid_values", "bad_points")
 
 
 def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0,
@@ -50,6 +55,10 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
             "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
             "duration_s": run_.duration_s,
             "events": [{"t": t, "what": w} for t, w in run_.events],
+            # each agent's counters as its last result carried them (refusals, confirmations)
+            "counters": run_.counters,
+            "refused_from_fleet": {a: {k: v for k, v in c.items() if k in FLEET_REFUSALS and v}
+                                   for a, c in run_.counters.items()},
             # the link once the maps stopped changing (after the bag and settle_s more)
             "after_bag": {"window_s": max(quiet[1] - quiet[0], 0.0),
                           "bytes_per_s": per_agent_rate(run_.timeline, *quiet) if quiet[1] > quiet[0] else {}},

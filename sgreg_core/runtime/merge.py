@@ -19,7 +19,11 @@ steps on the same links, so all of them publish the same tree:
    gives between its ends. Otherwise it breaks the cycles it is in and is rejected, with the
    reason. A wrong link in a cycle of right ones closes no consistent cycle, so it comes after
    them and is refused; a link in no cycle (a bridge) cannot be checked and is kept, as the
-   pair's own verdict and confirmation already are.
+   pair's own verdict and confirmation already are. When a rejected link is as well backed as
+   an accepted link on the path it contradicts, only the order decided between them: all of
+   them are set aside as contested (and disputed, so their agents withhold them) and the rest
+   is merged again, so an agent that two equally trusted paths place differently waits
+   unattached until a further link settles it.
 3. Poses: the merged frame is the levelled frame of the anchor, the lowest agent id of the
    largest group (so a lone agent with a low id cannot hide the fleet); every other agent's
    pose is the confidence-weighted average over all its accepted measurements of (neighbour
@@ -170,6 +174,50 @@ def _path_transform(tree: dict[str, dict[str, np.ndarray]], a: str, b: str) -> n
     return seen.get(b)
 
 
+def _path(tree: dict[str, dict[str, tuple[np.ndarray, Link]]], a: str,
+          b: str) -> tuple[np.ndarray, list[Link]] | None:
+    """T_a^b along the accepted forest and the links on the way (None when a and b are not
+    joined)."""
+    seen, stack = {a: (np.eye(4), [])}, [a]
+    while stack:
+        x = stack.pop()
+        for y, (T_xy, l) in tree[x].items():
+            if y not in seen:
+                seen[y] = (T_xy @ seen[x][0], seen[x][1] + [l])
+                stack.append(y)
+    return seen.get(b)
+
+
+def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
+            cfg: MergeConfig) -> tuple[list[Link], list[tuple[Link, str]], set, set]:
+    """Step 2 on links in order: (accepted, rejected with reasons, keys of disputed links,
+    contested pairs: a rejected link broke a cycle whose accepted links are no better backed
+    than it, so that only the order decided between them)."""
+    tree: dict[str, dict[str, tuple[np.ndarray, Link]]] = {a: {} for a in names}
+    accepted, rejected, disputed, contested = [], [], set(), set()
+    for l in order:
+        found = _path(tree, l.src, l.dst)
+        if found is not None and not _consistent(l.T, found[0], cfg):
+            dt, dyaw = _deviation(l.T, found[0])
+            rejected.append((l, f"breaks the cycles it is in: {dt:.2f} m / {dyaw:.1f} deg from the "
+                                f"path of the accepted links (closes {triangles[l.key]} consistent "
+                                "cycles through other agents)"))
+            # disputed by other agents' links when the path runs through them, or when the link
+            # of the same pair it contradicts is backed by a triangle
+            same_pair = [m for m in accepted if set(m.key) == set(l.key)]
+            if l.dst not in tree[l.src] or any(triangles[m.key] for m in same_pair):
+                disputed.add(l.key)
+            weak = [m for m in found[1] if support[m.key] <= support[l.key]]
+            if weak and l.dst not in tree[l.src]:    # a pair at odds with itself is step 2's own rule
+                contested |= {frozenset(l.key)} | {frozenset(m.key) for m in weak}
+            continue
+        accepted.append(l)
+        if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
+            tree[l.src][l.dst] = (l.T, l)
+            tree[l.dst][l.src] = (invert_transform(l.T), l)
+    return accepted, rejected, disputed, contested
+
+
 def merge(links: list[Link], agents: list[str] | None = None,
           cfg: MergeConfig | None = None) -> MergeResult:
     """The consistent links and one pose per attached agent (see the module docstring)."""
@@ -188,26 +236,24 @@ def merge(links: list[Link], agents: list[str] | None = None,
         if l.key in undecided:
             rejected.append((l, f"{l.src} and {l.dst} disagree about their pair and no third agent's "
                                 "links decide"))
+    support = {k: pair[k] + triangles[k] for k in pair}
     order = sorted((l for l in links if l.key not in undecided),
-                   key=lambda l: (-(pair[l.key] + triangles[l.key]), -l.confidence, l.key))
-    tree: dict[str, dict[str, np.ndarray]] = {a: {} for a in names}   # accepted: a -> {b: T_a^b}
-    accepted = []
+                   key=lambda l: (-support[l.key], -l.confidence, l.key))
+    # a cycle that only the order of equally backed links decided keeps none of them (their
+    # agents wait for a link that settles it); the rest is merged again without them
+    contested: set = set()
+    while True:
+        keep = [l for l in order if frozenset(l.key) not in contested]
+        accepted, broken, disputed, more = _greedy(keep, names, support, triangles, cfg)
+        if not more:
+            break
+        contested |= more
     for l in order:
-        path = _path_transform(tree, l.src, l.dst)
-        if path is not None and not _consistent(l.T, path, cfg):
-            dt, dyaw = _deviation(l.T, path)
-            rejected.append((l, f"breaks the cycles it is in: {dt:.2f} m / {dyaw:.1f} deg from the "
-                                f"path of the accepted links (closes {triangles[l.key]} consistent "
-                                "cycles through other agents)"))
-            # disputed by other agents' links when the path runs through them, or when the link
-            # of the same pair it contradicts is backed by a triangle
-            same_pair = [m for m in accepted if set(m.key) == set(l.key)]
-            if l.dst not in tree[l.src] or any(triangles[m.key] for m in same_pair):
-                disputed.add(l.key)
-            continue
-        accepted.append(l)
-        if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
-            tree[l.src][l.dst], tree[l.dst][l.src] = l.T, invert_transform(l.T)
+        if frozenset(l.key) in contested:
+            rejected.append((l, "contested: it and the links it disagrees with close no more "
+                                "consistent cycles than each other, so no majority decides"))
+            disputed.add(l.key)
+    rejected += broken
     groups = _groups(names, accepted)
     attached = max(groups, key=len) if groups else []     # the largest group, the lowest id on ties
     anchor = attached[0] if attached else None

@@ -16,7 +16,10 @@ An estimate that passes the verdict is not yet published as verified. The link t
 - candidate -> confirmed: a second one, made from other data (a map of either agent with other
   content, or the other kind of correspondences: points of a dense answer against node centers
   of a coarse graph), at least one of the two dense (confirm_with_dense), and agreeing with the
-  candidate (within agree_m / agree_deg); the transform is
+  candidate (within agree_m / agree_deg); or one that the peer's own estimates of the link
+  witness (heard on its sgreg/registration, made from this agent's points against the peer's
+  whole map, so other data by construction; confirm_with_peer): the peer's confirmed link, or
+  for a dense estimate a dense one of the peer that passed its verdict. The transform is
   published from then on, for every estimate that passes the verdict and agrees with the link;
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
@@ -89,6 +92,10 @@ class PeersConfig:
         from successive graphs share most of their node matches, so they are not independent,
         and node centers are the least accurate evidence (on the training rooms of the real
         suite, verified coarse estimates lie twice as far from the truth as dense ones).
+    confirm_with_peer: the peer's own estimates of the link count as the other data for a
+        confirmation (Peers._witnessed): its confirmed link for any estimate, its dense
+        estimates that passed its verdict for a dense one.
+    witness_max_age_s: a peer's estimate older than this no longer confirms anything.
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -129,6 +136,9 @@ class PeersConfig:
     confirm: bool = param(True, "publish a link only once two estimates from different data agree")
     confirm_with_dense: bool = param(True, "a first confirmation needs a dense estimate among the "
                                      "two that agree")
+    confirm_with_peer: bool = param(True, "the peer's own estimates of the link may confirm it")
+    witness_max_age_s: float = param(10.0, "a peer's estimate confirms for this long", 0.0,
+                                     3600.0, live=True)
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -229,6 +239,7 @@ class Peers:
         self.expected: Callable[[str], np.ndarray | None] = lambda peer: None
         self.counters: Counter = agent.counters     # one table per node: the agent's
         self._request_seq = 0
+        self._witnesses: dict[str, dict] = {}   # peer -> {kind: (T_agent^peer, when heard)}
         self._said: set = set()
         self._dense_cfg = replace(cfg.pipeline, mode="dense")
         self._coarse_cfg = replace(cfg.pipeline, mode="coarse")
@@ -254,6 +265,46 @@ class Peers:
             self._count("own_map_not_ready")
             return None, None
         return self._estimate_coarse(link, now)
+
+    def on_peer_result(self, peer: str, T_peer_agent: np.ndarray, verified: bool, mode: str,
+                       reason: str, now: float) -> None:
+        """A peer's own estimate of its link to this agent (its RegistrationResult naming this
+        agent), kept as a witness (see _witnessed) when the peer published it as verified, or
+        when it is a dense estimate that passed the peer's verdict. It may be heard before the
+        peer's first graph. A candidate it confirms is confirmed at once."""
+        passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
+        if peer == self.agent.cfg.name or not passed:
+            return
+        T = np.asarray(T_peer_agent, np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            return
+        if peer not in self._witnesses and len(self._witnesses) >= self.cfg.max_peers:
+            del self._witnesses[min(self._witnesses, key=lambda p: max(t for _, t in self._witnesses[p].values()))]
+        kind = "confirmed" if verified else "dense"
+        self._witnesses.setdefault(peer, {})[kind] = (invert_transform(T), now)
+        link = self.links.get(peer)
+        if self.cfg.confirm and link is not None and link.confirmed is None and link.candidate is not None \
+                and self._witnessed(link.candidate, peer, now):
+            link.confirmed, link.candidate = link.candidate, None
+            self._keep(link, link.confirmed)
+            self._count("confirmed_by_peer")
+
+    def _witnessed(self, hyp: Hypothesis, peer: str, now: float) -> bool:
+        """Whether the peer's own estimates confirm hyp (confirm_with_peer): they register this
+        agent's points against the peer's whole map, so they share no correspondence with this
+        agent's. Either the peer's confirmed link (a transform it published as verified) agrees
+        with hyp, or hyp is dense and so is a peer estimate that passed its verdict and agrees:
+        two dense estimates from the two sides. A coarse estimate needs the peer's confirmation:
+        two agents that each saw one of two identical rooms make the same wrong slide, and in
+        the 4-agent building bag a coarse estimate and the peer's unconfirmed dense one agreed on
+        one."""
+        if not self.cfg.confirm_with_peer:
+            return False
+        for kind, (T, at) in self._witnesses.get(peer, {}).items():
+            if now - at <= self.cfg.witness_max_age_s and (kind == "confirmed" or hyp.mode == "dense") \
+                    and self._agree(hyp.T, T):
+                return True
+        return False
 
     def on_own_map(self, now: float) -> list[tuple[Estimate, DenseRequestMessage | None]]:
         """After the own map changed: estimates against the last coarse graph of every quiet
@@ -281,7 +332,7 @@ class Peers:
             # this query (the paper's coarse-to-fine step), instead of a result bound to fail.
             self._count("deferred_to_dense")
             return None, request
-        return self._judge(link, reg, msg.digest, timings, t0), request
+        return self._judge(link, reg, msg.digest, timings, t0, now), request
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
@@ -311,7 +362,7 @@ class Peers:
                                 self._own_reference(msg.points), self._dense_cfg, timings)
         # the evidence is the requested nodes' content: two answers with the same content are
         # the same data, whatever the peer's map sequence says or holds elsewhere
-        return self._judge(link, reg, msg.digest, timings, t0, dense=msg)
+        return self._judge(link, reg, msg.digest, timings, t0, now, dense=msg)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Requests the interval held back, retries of unanswered ones (with back-off), and
@@ -345,6 +396,7 @@ class Peers:
         gone = [p for p, link in self.links.items() if now - link.heard_at > self.cfg.peer_timeout_s]
         for peer in gone:
             del self.links[peer]
+            self._witnesses.pop(peer, None)
             self._count("peer_expired")
             self.log(f"peer {peer} silent for {self.cfg.peer_timeout_s:g} s: forgotten")
         return gone
@@ -383,6 +435,7 @@ class Peers:
                 self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {held}, {msg.sequence}): "
                          "forgetting its old map")
                 link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
+                self._witnesses.pop(msg.agent_id, None)
         elif stream == "coarse" and last is not None and msg.sequence - last > 1:
             # lost on the way (a full queue, the network); dense answers also go to others
             self.counters["missed_messages"] += msg.sequence - last - 1
@@ -467,7 +520,7 @@ class Peers:
             link.kept, link.dense_cloud = None, None
 
     def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
-               t0: float, dense: GraphMessage | None = None) -> Estimate:
+               t0: float, now: float, dense: GraphMessage | None = None) -> Estimate:
         """The estimate as published: the verdict of the pipeline, then the link's rules."""
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         self._count(f"estimates_{reg.mode}")
@@ -487,7 +540,7 @@ class Peers:
                             _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R)
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
-            reason = self._link_rules(link, reg, hyp)
+            reason = self._link_rules(link, reg, hyp, now)
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
@@ -513,7 +566,7 @@ class Peers:
     def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
         return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg
 
-    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis) -> str:
+    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis, now: float) -> str:
         """"ok" when the estimate may be published as verified, else why not; updates the link."""
         merged = reg.mode == "merged"
         if not reg.success:
@@ -542,6 +595,11 @@ class Peers:
             return "contradicted"
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
+        if self._witnessed(hyp, link.peer_id, now):
+            link.confirmed, link.candidate = hyp, None
+            self._keep(link, hyp)
+            self._count("confirmed_by_peer")
+            return "ok"
         cand = link.candidate
         if cand is not None and self._agree(hyp.T, cand.T):
             if self._independent(cand, hyp):

@@ -175,3 +175,25 @@ def test_the_anchor_is_the_largest_group_not_a_lone_low_id():
     result = merge([true_link("c", "b"), true_link("d", "c")], agents=["a", "b", "c", "d"])
     assert result.anchor == "b" and result.attached == ["b", "c", "d"]
     assert ["a"] in result.groups
+
+
+def test_an_agent_two_equally_backed_paths_place_apart_waits_unattached():
+    """b and d agree on a wrong link (a slide by one room width), c and d on the right one, and
+    no link of a reaches d: nothing but the order would decide, so d is attached by neither
+    until a's link settles it."""
+    slide = from_4dof(0.0, (4.04, 0.0, 0.0))
+    base = [true_link(s, d) for s, d in itertools.permutations("abc", 2)]
+    b_d = [Link("b", "d", slide @ true_link("b", "d").T, 0.99),
+           Link("d", "b", invert_transform(slide @ true_link("b", "d").T), 0.99)]
+    c_d = [true_link("c", "d"), true_link("d", "c")]
+    for confidence in (0.5, 0.999):      # whichever is the more confident, neither wins
+        result = merge(base + b_d + [Link(l.src, l.dst, l.T, confidence) for l in c_d])
+        assert result.attached == ["a", "b", "c"] and "d" not in result.poses
+        contested = {l.key for l, why in result.rejected if why.startswith("contested")}
+        assert contested == {("b", "d"), ("d", "b"), ("c", "d"), ("d", "c")}
+        assert contested <= result.disputed
+        assert_poses(result)
+    settled = merge(base + b_d + c_d + [true_link("a", "d")])
+    assert settled.attached == ["a", "b", "c", "d"]
+    assert {l.key for l, _ in settled.rejected} == {("b", "d"), ("d", "b")}
+    assert_poses(settled)

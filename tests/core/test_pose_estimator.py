@@ -295,3 +295,21 @@ def test_inliers_from_too_few_objects_are_refused():
     assert pose_error(res.T, T)[0] < 0.05           # the pose is right, but two objects are
     assert res.reason == "too_few_objects"          # not enough to trust it
     assert estimate_pose(src, ref, cfg=PoseConfig(nms_radius=0.0)).success   # points alone would
+
+
+def test_the_clique_pyramid_sees_the_most_confident_correspondences_only():
+    """6000 correspondences, 92 % outliers: the pyramid runs on the 1000 most confident (the
+    inliers weigh more, as matched nodes do) and still finds the pose, at a fraction of the
+    quadratic cost; the cliques' indices point into all 6000."""
+    rng = np.random.default_rng(3)
+    T = random_room_pose(rng)
+    src, ref, k = correspondences(rng, 6000, 0.92, T)
+    w = np.where(np.arange(6000) >= k, 1.0, 0.5) * rng.uniform(0.5, 1.0, 6000)
+    capped = estimate_pose(src, ref, weights=w, cfg=PoseConfig(max_clique_correspondences=1000))
+    dt, dr = pose_error(capped.T, T)
+    assert capped.success and capped.used_pyramid and dt < 0.05 and dr < 1.0, capped.reason
+    assert max(capped.clique_sizes) <= 1000
+    assert capped.inlier_mask[k:].mean() > 0.95          # inliers found among all of them
+    from sgreg_core.pose.estimator import _clique_pyramid
+    level = _clique_pyramid(src, ref, np.full(6000, 0.1), w, (0.2,), PoseConfig(max_clique_correspondences=1000))[0]
+    assert level.indices.size >= 100 and set(level.indices) <= set(np.argsort(-w)[:1000])

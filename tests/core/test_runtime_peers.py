@@ -85,6 +85,50 @@ def test_the_same_data_twice_does_not_confirm(model, graphs):
     assert est.verified, est.reason
 
 
+def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
+    """b's estimates of the link, made from a's points against b's whole map, are other data:
+    b's confirmed link (a transform b published as verified) confirms a's first estimate that
+    agrees with it, and so does a dense estimate of b that passed b's verdict for a's dense one.
+    One that disagrees, an old one, or a coarse one b did not verify confirms nothing."""
+    from sgreg_core.geometry import invert_transform
+    T_ba = invert_transform(T_GT)          # what b publishes: maps b's frame into a's
+    off = yaw_transform(np.radians(30.0), (1.0, 0.0, 0.0)) @ T_ba
+    for witness, verified, mode, reason, age, confirmed in [
+            (T_ba, True, "merged", "ok", 1.0, True),
+            (T_ba, False, "dense", "awaiting_confirmation", 1.0, True),
+            (off, True, "dense", "ok", 1.0, False),
+            (T_ba, True, "dense", "ok", 30.0, False),
+            (T_ba, False, "coarse", "awaiting_confirmation", 1.0, False),
+            (T_ba, False, "dense", "verification_failed", 1.0, False)]:
+        a, b, reg, _ = make_agents(model, graphs)
+        reg.on_peer_result("b", witness, verified, mode, reason, now=0.5 - age)   # before b's first graph
+        _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+        assert est.verified is confirmed, (verified, mode, reason, age, est.reason)
+        assert reg.counters["confirmed_by_peer"] == int(confirmed)
+    # heard after a's dense candidate: the candidate is confirmed there and then
+    a, b, reg, _ = make_agents(model, graphs)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).link == "candidate"
+    reg.on_peer_result("b", off, True, "dense", "ok", now=0.6)
+    reg.on_peer_result("b", T_ba, False, "coarse", "awaiting_confirmation", now=0.6)
+    assert reg.links["b"].state == "candidate"
+    reg.on_peer_result("b", T_ba, False, "dense", "awaiting_confirmation", now=0.7)
+    assert reg.links["b"].state == "confirmed" and reg.counters["confirmed_by_peer"] == 1
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified and est.mode == "merged", est.reason
+    # a coarse estimate needs b's confirmed link, not just its dense estimate
+    a, b, reg, _ = make_agents(model, graphs)
+    reg.on_peer_result("b", T_ba, False, "dense", "ok", now=0.0)
+    assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5)
+    assert reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "dense"), "dense"), "b", 0.5)
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(confirm_with_peer=False))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_peer_result("b", T_ba, True, "dense", "ok", now=0.4)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
+        == "awaiting_confirmation"
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)

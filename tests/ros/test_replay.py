@@ -33,6 +33,9 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
     assert "last verified T_a^b" in stdout and "ground truth" in stdout
     # both agents' nodes were measured
     assert {"a/agent", "a/registration", "b/agent", "b/registration"} <= set(report["nodes"])
+    # signed messages of the fleet all checked on the other side, results included
+    assert set(report["counters"]) == {"a", "b"}
+    assert not any(report["refused_from_fleet"].values()), report["refused_from_fleet"]
 
 
 def test_an_agent_that_crashes_mid_replay_recovers(tmp_path):
@@ -61,16 +64,17 @@ def test_a_corrupted_message_is_reported_and_the_replay_goes_on(tmp_path):
 
 def test_four_agents_on_a_building_floor_end_in_one_frame(tmp_path):
     """The shipped 4-agent bag (runs of identical rooms): every agent attached to the merged
-    frame on /tf, no wrong link kept by the merge of every agent's results, each agent's
-    traffic reported. (Where /tf put each map is measured, not asserted: in this bag a pair of
-    agents that saw only identical rooms can hold a wrong link both agree on, and with no third
-    link to decide, one of two runs of the replay placed that map a room width off; see
-    docs/RESULTS.md.)"""
+    frame on /tf where the truth puts it (a map placed a room width off is the failure the
+    cycles and contested links exist for), no wrong link kept by the merge of every agent's
+    results, each agent's traffic reported, and every agent's signed results taken by the
+    others' mergers."""
     report, stdout = replay(BAGS / "building_4agents", tmp_path, timeout=600)
     merge = report["merge"]
     assert merge["agents"] == 4 and merge["attached"] == 4, merge
     assert merge["published_on_tf"] and merge["wrong_links_kept"] == 0, merge
-    assert merge["max_pose_error_m"] is not None
+    # every agent's merger took the others' signed results (none refused on the way)
+    assert not any(report["refused_from_fleet"].values()), report["refused_from_fleet"]
+    assert merge["max_pose_error_m"] < 0.5 and merge["max_pose_error_deg"] < 5.0, merge["pose_errors"]
     assert set(report["during_bag"]["bytes_per_s"]) == {"a", "b", "c", "d"}
     assert "4 of 4 agents attached" in stdout
     assert (tmp_path / "r_merged.png").stat().st_size > 20_000
