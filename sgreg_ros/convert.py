@@ -296,8 +296,8 @@ class Result:
     link: str
     confidence: float
     stamp: float
-    node_pairs: np.ndarray
-    mode: str = ""   # (k, 2) (agent node id, peer node id)
+    node_pairs: np.ndarray   # (k, 2) (agent node id, peer node id)
+    mode: str = ""           # "coarse", "dense" or "merged"
 
 
 @decoder

@@ -82,6 +82,12 @@ class RegistrationNode(SgregNode):
             agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
             peers_cfg = PeersConfig(**pick(PeersConfig, p),
                                     pipeline=PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p)))
+            if self.auth.keystore is None and peers_cfg.confirm_with_peer:
+                # unsigned, anyone could echo this agent's candidate back as the peer's verified
+                # link and skip the two-estimate rule: the peer's word counts only when signed
+                peers_cfg = replace(peers_cfg, confirm_with_peer=False)
+                self.get_logger().warning("confirm_with_peer off: a peer's results count as evidence "
+                                          "only when signed (no keystore)")
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
@@ -206,7 +212,7 @@ class RegistrationNode(SgregNode):
                          result.link, result.confidence, result.stamp)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
             self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode, result.reason,
-                                      time.monotonic())
+                                      result.link, time.monotonic())
 
     def on_merge(self) -> None:
         self.guarded("the merge", self._merge)
@@ -217,6 +223,7 @@ class RegistrationNode(SgregNode):
             self.get_logger().info(line)
         self.peers.attached = self.merger.settled_peers()
         self.peers.disputed = self.merger.disputed_peers()
+        self.peers.placed = self.merger.placed_by_others()
         result = self.merger.result
         self.agent.counters["agents_attached"] = len(result.attached)
         self.agent.counters["links_rejected"] = len(result.rejected)

@@ -88,7 +88,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                 m.set_level(est.peer_id, agents[est.peer_id].level.R)
                 m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, now)
             # the peer hears the result too (its witness for the link, Peers.on_peer_result)
-            peers_of[est.peer_id].on_peer_result(agent, est.T, est.verified, est.mode, est.reason, now)
+            peers_of[est.peer_id].on_peer_result(agent, est.T, est.verified, est.mode, est.reason, est.link, now)
             records.append(ResultRecord(t=now, agent=agent, peer=est.peer_id, T=est.T,
                                         verified=est.verified, mode=est.mode, reason=est.reason,
                                         node_matches=est.node_matches, inliers=est.inliers,
@@ -117,6 +117,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             log(f"{name}: {line}")
         peers_of[name].attached = mergers[name].settled_peers()
         peers_of[name].disputed = mergers[name].disputed_peers()
+        peers_of[name].placed = mergers[name].placed_by_others()
         peers_of[name].expected = mergers[name].expected
         for req in peers_of[name].on_tick(now):
             _deliver(req, agents, peers_of, name, encoding, now, record)

@@ -20,10 +20,11 @@ steps on the same links, so all of them publish the same tree:
    reason. A wrong link in a cycle of right ones closes no consistent cycle, so it comes after
    them and is refused; a link in no cycle (a bridge) cannot be checked and is kept, as the
    pair's own verdict and confirmation already are. When a rejected link is as well backed as
-   an accepted link on the path it contradicts, only the order decided between them: all of
-   them are set aside as contested (and disputed, so their agents withhold them) and the rest
-   is merged again, so an agent that two equally trusted paths place differently waits
-   unattached until a further link settles it.
+   the one accepted link on the path it contradicts that is no better backed than it (the rest
+   of the path being better backed), only the order decided between those two: both are set
+   aside as contested (and disputed, so their agents withhold them) and the rest is merged
+   again, so an agent that two equally trusted links place differently waits unattached until
+   a further link settles it.
 3. Poses: the merged frame is the levelled frame of the anchor, the lowest agent id of the
    largest group (so a lone agent with a low id cannot hide the fleet); every other agent's
    pose is the confidence-weighted average over all its accepted measurements of (neighbour
@@ -43,7 +44,8 @@ Public API:
     merge(links, agents, cfg) -> MergeResult
     Links                     the latest link state per directed pair, fed with results
     Merger                    one agent's merger: levellings + Links + merge + what changed +
-                              which peers need no more dense data, which links are disputed
+                              which peers need no more dense data (settled, placed by others),
+                              which links are disputed
     to_4dof(T) -> (yaw, t) / from_4dof(yaw, t) -> 4x4
 """
 from __future__ import annotations
@@ -125,6 +127,8 @@ class MergeResult:
     accepted: list[Link]
     rejected: list[tuple[Link, str]]      # (link, one-line reason)
     disputed: set = field(default_factory=set)   # keys of rejected links a third agent's links contradict
+    checked: set = field(default_factory=set)    # attached agents an accepted link that closes a
+                                                 # consistent triangle places (not a bridge)
 
     def to_json(self) -> dict:
         return {"anchor": self.anchor, "attached": self.attached, "groups": self.groups,
@@ -207,9 +211,12 @@ def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
             same_pair = [m for m in accepted if set(m.key) == set(l.key)]
             if l.dst not in tree[l.src] or any(triangles[m.key] for m in same_pair):
                 disputed.add(l.key)
+            # one link against one: the rest of the path backs the accepted link's side, and
+            # the two are equally backed (in a longer cycle of weak links, no single link is
+            # singled out by the cycle, and the order of support and confidence stands)
             weak = [m for m in found[1] if support[m.key] <= support[l.key]]
-            if weak and l.dst not in tree[l.src]:    # a pair at odds with itself is step 2's own rule
-                contested |= {frozenset(l.key)} | {frozenset(m.key) for m in weak}
+            if len(weak) == 1 and l.dst not in tree[l.src]:   # a pair at odds with itself: step 2
+                contested |= {frozenset(l.key), frozenset(weak[0].key)}
             continue
         accepted.append(l)
         if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
@@ -258,8 +265,9 @@ def merge(links: list[Link], agents: list[str] | None = None,
     attached = max(groups, key=len) if groups else []     # the largest group, the lowest id on ties
     anchor = attached[0] if attached else None
     poses = _average(attached, anchor, [l for l in accepted if l.src in attached], cfg)
+    checked = {a for l in accepted if triangles[l.key] for a in l.key} & set(attached)
     return MergeResult(poses=poses, anchor=anchor, attached=attached, groups=groups,
-                       accepted=accepted, rejected=rejected, disputed=disputed)
+                       accepted=accepted, rejected=rejected, disputed=disputed, checked=checked)
 
 
 def _groups(names: list[str], accepted: list[Link]) -> list[list[str]]:
@@ -371,6 +379,8 @@ class Merger:
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
              link_state: str, confidence: float, stamp: float) -> None:
         levelled = self._level_T(peer) @ np.asarray(T, np.float64) @ invert_transform(self._level_T(agent))
+        # as float32, what the other agents' mergers get over the wire: the same order for all
+        confidence = float(np.float32(confidence))
         self.links.take(agent, peer, levelled, verified, reason, link_state, confidence, stamp)
 
     def raw_poses(self) -> dict[str, np.ndarray]:
@@ -404,6 +414,11 @@ class Merger:
         """Peers this agent's own link to is rejected by cycles through other agents (a
         disagreement within a pair alone disputes neither side: each link's own rules judge it)."""
         return {l.dst for l, _ in self.result.rejected if l.src == self.agent and l.key in self.result.disputed}
+
+    def placed_by_others(self) -> set[str]:
+        """Settled peers that a link closing a consistent triangle places in the merged frame:
+        other agents' links already place them, and not through a bridge no cycle checks."""
+        return self.settled_peers() & self.result.checked
 
     def settled_peers(self) -> set[str]:
         """Peers placed in this agent's merged frame whose links with it no cycle disputes:

@@ -68,10 +68,14 @@ class PeersConfig:
         would only cost bandwidth (an unanswered request is asked again).
     search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
         first link, and confirm it, in seconds.
-    attached_request_interval_s: the interval to a peer whose link is confirmed and that the
-        merger places in the agent's merged frame with no cycle disputing it (Peers.attached):
-        more dense data would not place it better, so with N agents each one's dense traffic
-        stays near the two-agent figure instead of growing with N^2 (runtime/merge.py).
+    attached_request_interval_s: the interval to a peer that the merger places in the agent's
+        merged frame with no cycle disputing it (Peers.attached), when the link to it is
+        confirmed (and its points at hand), or, with no link of this agent's own, when other
+        agents' links place it through a consistent triangle (Peers.placed; a bridge no cycle
+        checks is still searched every search interval, since this agent's own link is what
+        would check it): more dense data would not place it better, so with N agents each
+        one's dense traffic stays near the two-agent figure instead of growing with N^2
+        (runtime/merge.py).
     request_timeout_s: an unanswered request is retried after this, then after
         timeout * retry_backoff^k, up to max_retries; then the link gives up until the next
         interval.
@@ -117,8 +121,8 @@ class PeersConfig:
                                           "a link to it is confirmed", 0.0, 3600.0, live=True)
     search_request_interval_s: float = param(2.0, "the request interval while no link to the peer "
                                              "is confirmed", 0.0, 3600.0, live=True)
-    attached_request_interval_s: float = param(30.0, "the request interval to a peer whose confirmed "
-                                               "link the merged frame agrees with", 0.0,
+    attached_request_interval_s: float = param(30.0, "the request interval to a peer the merged "
+                                               "frame places", 0.0,
                                                3600.0, live=True)
     request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
                                      0.1, 600.0, live=True)
@@ -235,6 +239,7 @@ class Peers:
         self.links: dict[str, PeerLink] = {}       # peer id -> what the agent knows of it
         self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
         self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
+        self.placed: set[str] = set()     # peers other agents' links place (Merger.placed_by_others)
         # T_agent^peer where the merged frame of three or more agents places the peer, or None
         self.expected: Callable[[str], np.ndarray | None] = lambda peer: None
         self.counters: Counter = agent.counters     # one table per node: the agent's
@@ -267,13 +272,22 @@ class Peers:
         return self._estimate_coarse(link, now)
 
     def on_peer_result(self, peer: str, T_peer_agent: np.ndarray, verified: bool, mode: str,
-                       reason: str, now: float) -> None:
+                       reason: str, link_state: str, now: float) -> None:
         """A peer's own estimate of its link to this agent (its RegistrationResult naming this
         agent), kept as a witness (see _witnessed) when the peer published it as verified, or
         when it is a dense estimate that passed the peer's verdict. It may be heard before the
-        peer's first graph. A candidate it confirms is confirmed at once."""
+        peer's first graph. A candidate it confirms is confirmed at once. A result that says
+        the peer's link is no longer confirmed, or that its cycles dispute it, takes its
+        confirmed link back as a witness; a contradicted one takes back every witness."""
+        if peer == self.agent.cfg.name:
+            return
+        held = self._witnesses.get(peer, {})
+        if reason == "contradicted":
+            held.clear()
+        elif link_state != "confirmed" or reason == "disputed_by_cycles":
+            held.pop("confirmed", None)
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
-        if peer == self.agent.cfg.name or not passed:
+        if not passed:
             return
         T = np.asarray(T_peer_agent, np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
@@ -647,8 +661,10 @@ class Peers:
             return None
         interval = (self.cfg.min_request_interval_s if link.confirmed is not None
                     else self.cfg.search_request_interval_s)
-        if link.confirmed is not None and link.dense_cloud is not None and link.peer_id in self.attached:
-            # settled: a placed peer whose points are at hand (dropped when its map moved)
+        if (link.peer_id in self.attached and link.confirmed is not None and link.dense_cloud is not None) \
+                or (link.confirmed is None and link.peer_id in self.placed):
+            # settled: a placed peer whose points are at hand (dropped when its map moved), or
+            # one that other agents' links place through a consistent triangle
             interval = max(interval, self.cfg.attached_request_interval_s)
         if now - link.last_request_at < interval:
             return None

@@ -10,7 +10,8 @@ from sgreg_core.runtime.merge import Link, Links, MergeConfig, from_4dof, merge,
 
 # each agent's map frame in the world: T_world<-agent
 WORLD = {"a": from_4dof(0.3, (1.0, 2.0, 0.0)), "b": from_4dof(-1.2, (-4.0, 0.5, 0.1)),
-         "c": from_4dof(2.5, (3.0, -6.0, 0.0)), "d": from_4dof(0.9, (8.0, 8.0, -0.1))}
+         "c": from_4dof(2.5, (3.0, -6.0, 0.0)), "d": from_4dof(0.9, (8.0, 8.0, -0.1)),
+         "e": from_4dof(-2.0, (-7.0, -3.0, 0.0))}
 
 
 def true_link(src: str, dst: str, noise: float = 0.0, rng=None) -> Link:
@@ -197,3 +198,28 @@ def test_an_agent_two_equally_backed_paths_place_apart_waits_unattached():
     assert settled.attached == ["a", "b", "c", "d"]
     assert {l.key for l, _ in settled.rejected} == {("b", "d"), ("d", "b")}
     assert_poses(settled)
+
+
+def test_one_wrong_link_in_a_ring_of_weak_links_leaves_the_rest_attached():
+    """A ring a-b-c-d-e measured one way each (no pair agreement, no triangle) and a wrong,
+    less confident a -> e: the cycle cannot single out one link, so the order of confidence
+    stands and the wrong link alone is rejected (nothing is contested)."""
+    ring = [Link(s_, d, true_link(s_, d).T, 0.9) for s_, d in ("ab", "bc", "cd", "de")]
+    wrong = Link("a", "e", from_4dof(0.3, (2.0, 0.0, 0.0)) @ true_link("a", "e").T, 0.5)
+    result = merge(ring + [wrong])
+    assert result.attached == ["a", "b", "c", "d", "e"]
+    assert [(l.key, why.startswith("breaks")) for l, why in result.rejected] == [(("a", "e"), True)]
+    assert_poses(result)
+
+
+def test_peers_placed_through_a_triangle_are_placed_by_others():
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    m.take("b", "c", true_link("b", "c").T, True, "ok", "confirmed", 0.9, 1.0)
+    m.take("a", "b", true_link("a", "b").T, True, "ok", "confirmed", 0.9, 1.0)
+    m.update(2.0)
+    assert m.settled_peers() == {"b", "c"} and m.placed_by_others() == set()   # a chain: bridges
+    m.take("a", "c", true_link("a", "c").T, True, "ok", "confirmed", 0.9, 3.0)
+    m.update(4.0)
+    assert m.placed_by_others() == {"b", "c"}

@@ -101,7 +101,8 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
             (T_ba, False, "coarse", "awaiting_confirmation", 1.0, False),
             (T_ba, False, "dense", "verification_failed", 1.0, False)]:
         a, b, reg, _ = make_agents(model, graphs)
-        reg.on_peer_result("b", witness, verified, mode, reason, now=0.5 - age)   # before b's first graph
+        reg.on_peer_result("b", witness, verified, mode, reason, "confirmed" if verified else "candidate",
+                           now=0.5 - age)   # before b's first graph
         _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
         est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
         assert est.verified is confirmed, (verified, mode, reason, age, est.reason)
@@ -110,21 +111,28 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
     a, b, reg, _ = make_agents(model, graphs)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).link == "candidate"
-    reg.on_peer_result("b", off, True, "dense", "ok", now=0.6)
-    reg.on_peer_result("b", T_ba, False, "coarse", "awaiting_confirmation", now=0.6)
+    reg.on_peer_result("b", off, True, "dense", "ok", "confirmed", now=0.6)
+    reg.on_peer_result("b", T_ba, False, "coarse", "awaiting_confirmation", "candidate", now=0.6)
     assert reg.links["b"].state == "candidate"
-    reg.on_peer_result("b", T_ba, False, "dense", "awaiting_confirmation", now=0.7)
+    reg.on_peer_result("b", T_ba, False, "dense", "awaiting_confirmation", "candidate", now=0.7)
     assert reg.links["b"].state == "confirmed" and reg.counters["confirmed_by_peer"] == 1
     est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
     assert est.verified and est.mode == "merged", est.reason
     # a coarse estimate needs b's confirmed link, not just its dense estimate
     a, b, reg, _ = make_agents(model, graphs)
-    reg.on_peer_result("b", T_ba, False, "dense", "ok", now=0.0)
+    reg.on_peer_result("b", T_ba, False, "dense", "ok", "candidate", now=0.0)
     assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5)
     assert reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "dense"), "dense"), "b", 0.5)
+    # a link b gives up (contradicted, disputed by its cycles, no longer confirmed) is taken back
+    for reason, link_state in (("contradicted", "candidate"), ("disputed_by_cycles", "confirmed"),
+                               ("too_few_inliers", "none")):
+        a, b, reg, _ = make_agents(model, graphs)
+        reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
+        reg.on_peer_result("b", off, False, "coarse", reason, link_state, now=0.1)
+        assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5), reason
     a, b, reg, _ = make_agents(model, graphs, PeersConfig(confirm_with_peer=False))
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
-    reg.on_peer_result("b", T_ba, True, "dense", "ok", now=0.4)
+    reg.on_peer_result("b", T_ba, True, "dense", "ok", "confirmed", now=0.4)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
         == "awaiting_confirmation"
 
@@ -397,6 +405,23 @@ def test_a_peer_the_merged_frame_places_is_asked_for_dense_data_rarely(model, gr
         drift(b, graphs, 5, 9.0)                       # new content: worth a request, if due
         _, req = reg.on_coarse(b.coarse_message(3), now=10.0)
         assert (req is not None) == expect
+
+
+def test_a_peer_other_agents_place_is_searched_rarely(model, graphs):
+    """No link of a's own to b yet: a searches b every search interval, unless other agents'
+    links place b through a consistent triangle (Peers.placed, from the merger); a bridge no
+    cycle checks, or any two-agent link, is searched as before."""
+    cfg = PeersConfig(search_request_interval_s=2.0, attached_request_interval_s=30.0)
+    for attached, placed, asks in ((set(), set(), True), ({"b"}, set(), True), ({"b"}, {"b"}, False)):
+        a, b, reg, _ = make_agents(model, graphs, cfg)
+        reg.attached, reg.placed = attached, placed
+        _, first = reg.on_coarse(b.coarse_message(1), now=0.0)
+        assert first is not None                 # the last request was long ago
+        reg.on_dense(b.dense_message(1, first.node_ids, "a", first.sequence), now=0.5)
+        reg.links["b"].candidate = None          # still searching: no link of a's own
+        drift(b, graphs, 5, 9.0)
+        _, req = reg.on_coarse(b.coarse_message(2), now=10.0)
+        assert (req is not None) == asks, (attached, placed)
 
 
 def test_kept_correspondences_go_when_the_peer_levels_its_map_anew(model, graphs):
