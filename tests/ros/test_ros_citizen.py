@@ -145,8 +145,9 @@ def test_agent_name_without_namespace_prefixes_the_topics(ros, tmp_path):
     w = Watcher([])
     p = _node(["agent", "--ros-args", "-p", "agent_name:=x"])
     try:
-        assert w.spin_until(lambda: w.node.count_subscribers("/x/mapping/instances") >= 1, 90), p.poll()
-        assert w.node.count_publishers("/x/sgreg/coarse") >= 1
+        # discovery reports a node's entities one by one: wait until both have been seen
+        assert w.spin_until(lambda: w.node.count_subscribers("/x/mapping/instances") >= 1
+                            and w.node.count_publishers("/x/sgreg/coarse") >= 1, 90), p.poll()
         assert w.node.count_subscribers("/mapping/instances") == 0
     finally:
         os.killpg(p.pid, signal.SIGINT)
