@@ -92,7 +92,7 @@ class RegistrationNode(SgregNode):
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
-            self.peers.expected = self.merger.expected
+            self.peers.follow(self.merger)
             self.peers.cfg = replace(self.peers.cfg, merged_tolerance=(self.merger.cfg.cycle_m,
                                                                       self.merger.cfg.cycle_deg))
             self.tf_pub = self.create_publisher(TFMessage, "/tf", qos.TF)
@@ -190,23 +190,8 @@ class RegistrationNode(SgregNode):
 
     def on_result(self, raw: bytes, peer: str) -> None:
         """A peer's registration result: its links, for the merger."""
-        if len(raw) > self.p["max_message_mb"] * 1e6:
-            self.refusal(self.agent.refuse("oversized_message", f"result on /{peer}'s topic refused "
-                                           "(max_message_mb)"))
-            return
-        try:
-            msg = convert.decode(raw, RegistrationResult)
-            result = convert.result_from_msg(msg)
-        except convert.ConversionError as exc:
-            self.refusal(self.agent.refuse("malformed_message", f"malformed result refused: {exc}"),
-                         key=f"malformed result {peer}")
-            return
-        refused = "agent_mismatch" if result.agent != peer else \
-            self.auth.check(msg, f"/{peer}/sgreg/registration", peer)
-        if refused:
-            self.refusal(self.agent.refuse(refused, f"result {msg.sequence} on /{peer}'s topic "
-                                           f"(agent_id {result.agent!r}) refused: {refused}"),
-                         key=f"{refused} result {peer}")
+        result = self._decode(convert.result_from_msg, raw, RegistrationResult, "registration", peer)
+        if result is None:
             return
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp)
@@ -221,9 +206,7 @@ class RegistrationNode(SgregNode):
         """Merge every agent's links; /tf gets the attached agents' maps in the merged frame."""
         for line in self.merger.update(self.now()):
             self.get_logger().info(line)
-        self.peers.attached = self.merger.settled_peers()
-        self.peers.disputed = self.merger.disputed_peers()
-        self.peers.placed = self.merger.placed_by_others()
+        self.peers.follow(self.merger)
         result = self.merger.result
         self.agent.counters["agents_attached"] = len(result.attached)
         self.agent.counters["links_rejected"] = len(result.rejected)
@@ -245,29 +228,31 @@ class RegistrationNode(SgregNode):
             self.get_logger().error(self.agent.refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
 
     # ---- helpers -------------------------------------------------------------------------
-    def _decode(self, fn, raw: bytes, cls, what: str, peer: str):
-        """The graph a peer's message carries, or None (refusal counted): undecodable, sent in
-        another agent's name, or (with a keystore) not signed by the peer's key."""
+    def _decode(self, fn, raw: bytes, cls, topic: str, peer: str):
+        """What a peer's message on /<peer>/sgreg/<topic> carries (fn of the message), or None
+        (refusal counted): oversized, undecodable, sent in another agent's name, or (with a
+        keystore) not signed by the peer's key."""
+        what = {"coarse": "coarse graph", "dense": "dense graph"}.get(topic, "result")
         if len(raw) > self.p["max_message_mb"] * 1e6:   # refused before a copy is decoded
             size, raw = len(raw), None
-            self.refusal(self.agent.refuse("oversized_message", f"{what} graph of {size / 1e6:.1f} MB on "
+            self.refusal(self.agent.refuse("oversized_message", f"{what} of {size / 1e6:.1f} MB on "
                                            f"/{peer}'s topic refused (max_message_mb)"))
             return None
         try:
             msg = convert.decode(raw, cls)
-            graph = fn(msg)
+            out = fn(msg)
         except convert.ConversionError as exc:
-            self.refusal(self.agent.refuse("malformed_message", f"malformed {what} graph refused: {exc}"),
-                         key=f"malformed {peer}")
+            self.refusal(self.agent.refuse("malformed_message", f"malformed {what} refused: {exc}"),
+                         key=f"malformed {what} {peer}")
             return None
-        refused = "agent_mismatch" if graph.agent_id != peer else \
-            self.auth.check(msg, f"/{peer}/sgreg/{what}", peer)
+        refused = "agent_mismatch" if msg.agent_id != peer else \
+            self.auth.check(msg, f"/{peer}/sgreg/{topic}", peer)
         if refused:
-            self.refusal(self.agent.refuse(refused, f"{what} graph {graph.sequence} on /{peer}'s "
-                                                        f"topic (agent_id {graph.agent_id!r}) refused: {refused}"),
-                         key=f"{refused} {peer}")
+            self.refusal(self.agent.refuse(refused, f"{what} {msg.sequence} on /{peer}'s topic "
+                                                    f"(agent_id {msg.agent_id!r}) refused: {refused}"),
+                         key=f"{refused} {what} {peer}")
             return None
-        return graph
+        return out
 
     def send_request(self, request) -> None:
         pub = self.request_pubs.get(request.to_agent)

@@ -115,10 +115,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
         heapq.heappush(events, (now + cfg.coarse_period_s, 1, 0, name, None))
         for line in mergers[name].update(now):
             log(f"{name}: {line}")
-        peers_of[name].attached = mergers[name].settled_peers()
-        peers_of[name].disputed = mergers[name].disputed_peers()
-        peers_of[name].placed = mergers[name].placed_by_others()
-        peers_of[name].expected = mergers[name].expected
+        peers_of[name].follow(mergers[name])
         for req in peers_of[name].on_tick(now):
             _deliver(req, agents, peers_of, name, encoding, now, record)
         if not agent.coarse_due(now):

@@ -166,18 +166,6 @@ def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
     return dt < cfg.cycle_m and dyaw < cfg.cycle_deg
 
 
-def _path_transform(tree: dict[str, dict[str, np.ndarray]], a: str, b: str) -> np.ndarray | None:
-    """T_a^b along the accepted forest (None when a and b are not joined)."""
-    seen, stack = {a: np.eye(4)}, [a]
-    while stack:
-        x = stack.pop()
-        for y, T_xy in tree[x].items():
-            if y not in seen:
-                seen[y] = T_xy @ seen[x]
-                stack.append(y)
-    return seen.get(b)
-
-
 def _path(tree: dict[str, dict[str, tuple[np.ndarray, Link]]], a: str,
           b: str) -> tuple[np.ndarray, list[Link]] | None:
     """T_a^b along the accepted forest and the links on the way (None when a and b are not
@@ -294,12 +282,12 @@ def _average(group: list[str], anchor: str | None, links: list[Link],
     weighted average of what their accepted measurements say, iterated to a fixed point."""
     if anchor is None or anchor not in group:
         return {}
-    tree: dict[str, dict[str, np.ndarray]] = {a: {} for a in group}
+    tree: dict[str, dict[str, tuple[np.ndarray, Link]]] = {a: {} for a in group}
     for l in links:
-        tree[l.src].setdefault(l.dst, l.T)
-        tree[l.dst].setdefault(l.src, invert_transform(l.T))
+        tree[l.src].setdefault(l.dst, (l.T, l))
+        tree[l.dst].setdefault(l.src, (invert_transform(l.T), l))
     # start from the spanning paths: T_merged<-a = T_a^anchor
-    pose = {a: to_4dof(_path_transform(tree, a, anchor)) for a in group}
+    pose = {a: to_4dof(_path(tree, a, anchor)[0]) for a in group}
     for _ in range(cfg.average_iters):
         moved = 0.0
         for a in group:

@@ -249,6 +249,15 @@ class Peers:
         self._dense_cfg = replace(cfg.pipeline, mode="dense")
         self._coarse_cfg = replace(cfg.pipeline, mode="coarse")
 
+    def follow(self, merger) -> None:
+        """Take what the agent's merger (runtime/merge.Merger) last decided: which peers are
+        settled or placed by others (fewer dense requests), whose links the cycles dispute
+        (withheld), and where the merged frame places each peer."""
+        self.attached = merger.settled_peers()
+        self.disputed = merger.disputed_peers()
+        self.placed = merger.placed_by_others()
+        self.expected = merger.expected
+
     # ---- inputs --------------------------------------------------------------------------
     def take_own_map(self, imap, map_sequence: int, stamp: float) -> str | None:
         """The agent's own new instance map (AgentCore.take_map), and its reference cloud
@@ -299,9 +308,7 @@ class Peers:
         link = self.links.get(peer)
         if self.cfg.confirm and link is not None and link.confirmed is None and link.candidate is not None \
                 and self._witnessed(link.candidate, peer, now):
-            link.confirmed, link.candidate = link.candidate, None
-            self._keep(link, link.confirmed)
-            self._count("confirmed_by_peer")
+            self._confirm(link, link.candidate, "confirmed_by_peer")
 
     def _witnessed(self, hyp: Hypothesis, peer: str, now: float) -> bool:
         """Whether the peer's own estimates confirm hyp (confirm_with_peer): they register this
@@ -610,16 +617,12 @@ class Peers:
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
         if self._witnessed(hyp, link.peer_id, now):
-            link.confirmed, link.candidate = hyp, None
-            self._keep(link, hyp)
-            self._count("confirmed_by_peer")
+            self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
         cand = link.candidate
         if cand is not None and self._agree(hyp.T, cand.T):
             if self._independent(cand, hyp):
-                link.confirmed, link.candidate = hyp, None
-                self._keep(link, hyp if hyp.kept is not None else cand)
-                self._count("confirmed")
+                self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
                 return "ok"
             if cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
@@ -633,6 +636,13 @@ class Peers:
         if a.data == b.data:
             return False
         return not self.cfg.confirm_with_dense or "dense" in (a.data[2], b.data[2])
+
+    def _confirm(self, link: PeerLink, hyp: Hypothesis, counter: str,
+                 kept_from: Hypothesis | None = None) -> None:
+        """The link is confirmed with hyp; its dense inliers (or kept_from's) are kept."""
+        link.confirmed, link.candidate = hyp, None
+        self._keep(link, kept_from or hyp)
+        self._count(counter)
 
     def _keep(self, link: PeerLink, hyp: Hypothesis) -> None:
         if hyp.kept is not None and len(hyp.kept.corr):
