@@ -29,8 +29,11 @@ Merged estimates rest on kept correspondences, which are no new evidence: they c
 confirmed link but never confirm or contradict one. The kept correspondences are re-checked
 whenever either map changes: when the nodes they come from have moved in either map (a
 front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
-the peer's dense cloud, and every merged estimate that fails the verdict drops them too.
-Without a dense cloud of the peer nothing is verified at all.
+the peer's dense cloud (so too when either map is levelled anew), and every merged estimate
+that fails the verdict drops them too. Without a dense cloud of the peer nothing is verified
+at all, so new points are then asked for at the search interval, not the confirmed link's.
+An estimate the verdict refused only for its confidence is taken when the peer's confirmed
+link agrees with it (vouched_min_confidence).
 
 With more agents, the merger (runtime/merge.py) checks every agent's links around cycles: while
 it rejects this agent's link with a peer, estimates of that link are withheld (reason
@@ -100,6 +103,14 @@ class PeersConfig:
         confirmation (Peers._witnessed): its confirmed link for any estimate, its dense
         estimates that passed its verdict for a dense one.
     witness_max_age_s: a peer's estimate older than this no longer confirms anything.
+    vouched_min_confidence: the confidence an estimate needs, instead of the verdict's
+        min_confidence, when the peer's confirmed link (a witness, as above) agrees with it and
+        only its confidence fell short (Peers._vouched). The verdict's confidence is P(right)
+        from the estimate's own evidence at the base rate of all estimates; a confirmed link of
+        the peer, itself two agreeing estimates on other data, that lands on the same pose is
+        independent evidence that multiplies its odds. Without it the peer's side of a link
+        the agent confirmed often never verifies: the peer sees fewer objects and its own
+        fits stay just under min_confidence (synthetic and training-room bags, docs/VERDICT.md).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -143,6 +154,8 @@ class PeersConfig:
     confirm_with_peer: bool = param(True, "the peer's own estimates of the link may confirm it")
     witness_max_age_s: float = param(10.0, "a peer's estimate confirms for this long", 0.0,
                                      3600.0, live=True)
+    vouched_min_confidence: float = param(0.5, "an estimate that the peer's confirmed link "
+                                          "agrees with needs only this confidence", 0.0, 1.0, live=True)
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -326,6 +339,16 @@ class Peers:
                     and self._agree(hyp.T, T):
                 return True
         return False
+
+    def _vouched(self, peer: str, reg: Registration, T: np.ndarray, now: float) -> bool:
+        """Whether an estimate that the verdict refused only for its confidence is taken all
+        the same: the peer's confirmed link agrees with it (vouched_min_confidence)."""
+        if reg.reason != "low_confidence" or reg.confidence < self.cfg.vouched_min_confidence \
+                or not self.cfg.confirm_with_peer:
+            return False
+        confirmed = self._witnesses.get(peer, {}).get("confirmed")
+        return confirmed is not None and now - confirmed[1] <= self.cfg.witness_max_age_s \
+            and self._agree(T, confirmed[0])
 
     def on_own_map(self, now: float) -> list[tuple[Estimate, DenseRequestMessage | None]]:
         """After the own map changed: estimates against the last coarse graph of every quiet
@@ -526,8 +549,7 @@ class Peers:
             (link.kept is not None and not np.allclose(link.kept.own_level, self.agent.level.R, atol=1e-9))
         if relevelled and (link.kept is not None or link.dense_cloud is not None):
             self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
-            self._count("kept_dropped")
-            link.kept, link.dense_cloud = None, None
+            self._drop_dense(link)
             return
         if link.kept is None:
             return
@@ -537,8 +559,16 @@ class Peers:
         if shift > self.cfg.kept_max_shift_m:
             self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
                      f"{shift:.2f} m since the dense exchange")
-            self._count("kept_dropped")
-            link.kept, link.dense_cloud = None, None
+            self._drop_dense(link)
+
+    def _drop_dense(self, link: PeerLink) -> None:
+        """Forget the kept correspondences and the peer's points. Without them nothing about
+        the link can be verified: new points are asked for as while searching
+        (search_request_interval_s), even for the same two graphs, rather than after the
+        confirmed link's interval (a map is levelled anew several times while it is small)."""
+        self._count("kept_dropped")
+        link.kept, link.dense_cloud = None, None
+        link.exchanged = None
 
     def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
                t0: float, now: float, dense: GraphMessage | None = None) -> Estimate:
@@ -549,6 +579,9 @@ class Peers:
         # estimated between the levelled graphs, published between the maps as they are
         to_map_frames(reg, Levelling.from_rotation(peer_msg.level), self.agent.level)
         T = invert_transform(reg.T)          # the pipeline maps peer -> own; publish own -> peer
+        if self._vouched(link.peer_id, reg, T, now):
+            reg.success, reg.reason = True, "ok"
+            self._count("vouched_by_peer")
         if reg.mode == "coarse" and reg.node_matches < self.cfg.min_coarse_matches:
             reason = "too_few_matches"
         elif reg.success and link.dense_cloud is None:
@@ -669,7 +702,8 @@ class Peers:
         data, wanted = link.wanted
         if data == link.exchanged:      # nothing new to learn from the same two graphs
             return None
-        interval = (self.cfg.min_request_interval_s if link.confirmed is not None
+        # the points of a confirmed link at hand: new ones would only refine it
+        interval = (self.cfg.min_request_interval_s if link.confirmed is not None and link.dense_cloud is not None
                     else self.cfg.search_request_interval_s)
         if (link.peer_id in self.attached and link.confirmed is not None and link.dense_cloud is not None) \
                 or (link.confirmed is None and link.peer_id in self.placed):

@@ -137,6 +137,37 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
         == "awaiting_confirmation"
 
 
+def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(model, graphs):
+    """An estimate refused only for its confidence is taken when b's confirmed link agrees with
+    it (vouched_min_confidence); not when b's link disagrees, is only a dense estimate, or the
+    confidence is under the floor."""
+    from sgreg_core.geometry import invert_transform
+    T_ba = invert_transform(T_GT)
+    off = yaw_transform(np.radians(30.0), (1.0, 0.0, 0.0)) @ T_ba
+    base = PeersConfig()
+    strict = replace(base.pipeline.pose, verdict=replace(base.pipeline.pose.verdict, min_confidence=1.0))
+    cfg = replace(base, pipeline=replace(base.pipeline, pose=strict))
+
+    def first_dense(cfg, witness=None, verified=True, mode="merged"):
+        a, b, reg, _ = make_agents(model, graphs, cfg)
+        if witness is not None:
+            reg.on_peer_result("b", witness, verified, mode, "ok" if verified else "awaiting_confirmation",
+                               "confirmed" if verified else "candidate", now=0.0)
+        _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        return reg, reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+
+    reg, est = first_dense(cfg)
+    assert est.reason == "low_confidence" and 0.5 < est.confidence < 1.0, (est.reason, est.confidence)
+    reg, est = first_dense(cfg, T_ba)
+    assert est.verified and est.link == "confirmed", est.reason
+    assert reg.counters["vouched_by_peer"] == 1 and reg.counters["confirmed_by_peer"] == 1
+    for witness, verified, mode in ((off, True, "merged"), (T_ba, False, "dense")):
+        reg, est = first_dense(cfg, witness, verified, mode)
+        assert est.reason == "low_confidence" and reg.counters["vouched_by_peer"] == 0, (verified, mode)
+    reg, est = first_dense(replace(cfg, vouched_min_confidence=1.0), T_ba)
+    assert est.reason == "low_confidence"
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
@@ -186,11 +217,15 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     assert reg.links["b"].kept is not None
     # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
     # cloud they were verified on, no longer describe b's map
-    b.set_graph(moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3)), 2, 2.0)
-    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    b.set_graph(moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3)), 2, 1.5)
+    est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
     assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
-    assert reg.counters["kept_dropped"] == 1
+    assert reg.counters["kept_dropped"] == 1 and req is None    # asked 1.5 s ago
+    # new points are asked for after the search interval (2 s), not the confirmed link's (5 s),
+    # and the same two graphs may be asked again: their dense answer answers the query
+    est, req = reg.on_coarse(b.coarse_message(4), now=2.0)
+    assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
 
 
 def test_duplicate_out_of_order_and_restart(model, graphs):
