@@ -111,6 +111,16 @@ class PeersConfig:
         independent evidence that multiplies its odds. Without it the peer's side of a link
         the agent confirmed often never verifies: the peer sees fewer objects and its own
         fits stay just under min_confidence (synthetic and training-room bags, docs/VERDICT.md).
+    tie_memory_s: after an estimate of a link is refused as ambiguous (a competing pose nearly
+        as well supported), the link's own agreeing estimates do not confirm it for this long;
+        only the peer's word does (Peers._link_rules). 0: off. Two estimates of the same two
+        maps, one dense and one coarse, share the maps' repeated structure: in the 4-agent
+        building bag both slid one identical room width together a second after a coarse
+        estimate of the pair had been refused for that tie (withdrawn 2 s later, never on /tf).
+        10 s removes that frame, but pairs of identical rooms tie every second, so their links
+        wait for the peer and keep searching: per-agent traffic rose 1.36x -> 1.84x of the
+        two-agent figure (issue 15 allows 1.5x). Off by default; a fleet that would rather wait
+        than publish a wrong pairwise frame between identical rooms turns it on.
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -156,6 +166,8 @@ class PeersConfig:
                                      3600.0, live=True)
     vouched_min_confidence: float = param(0.5, "an estimate that the peer's confirmed link "
                                           "agrees with needs only this confidence", 0.0, 1.0, live=True)
+    tie_memory_s: float = param(0.0, "after an ambiguous estimate, the link's own estimates "
+                                "do not confirm it for this long (0: off)", 0.0, 3600.0, live=True)
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -233,6 +245,7 @@ class PeerLink:
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
     candidate: Hypothesis | None = None
     confirmed: Hypothesis | None = None
+    tie_at: float = -np.inf      # when an estimate of the link was last refused as ambiguous
 
     @property
     def state(self) -> str:
@@ -624,6 +637,8 @@ class Peers:
         """"ok" when the estimate may be published as verified, else why not; updates the link."""
         merged = reg.mode == "merged"
         if not reg.success:
+            if reg.reason == "ambiguous":
+                link.tie_at = now
             if merged:   # the kept correspondences no longer hold on the current maps
                 link.kept = None
                 self._count("kept_dropped")
@@ -655,8 +670,10 @@ class Peers:
         cand = link.candidate
         if cand is not None and self._agree(hyp.T, cand.T):
             if self._independent(cand, hyp):
-                self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
-                return "ok"
+                if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
+                    self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
+                    return "ok"
+                self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
             if cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
             return "awaiting_confirmation"

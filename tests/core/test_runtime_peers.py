@@ -168,6 +168,38 @@ def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(mo
     assert est.reason == "low_confidence"
 
 
+def test_after_a_tie_only_the_peers_word_confirms_for_a_while(model, graphs):
+    """An estimate refused as ambiguous is remembered: for tie_memory_s the link's own agreeing
+    estimates (a dense one, then a coarse one) do not confirm it, the peer's confirmed link does;
+    after tie_memory_s they confirm as usual."""
+    from sgreg_core.geometry import invert_transform
+
+    def after_a_tie(tie_memory_s, witness=False):
+        a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0,
+                                                              tie_memory_s=tie_memory_s))
+        _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        shipped = reg._dense_cfg
+        verdict = replace(shipped.pose.verdict, max_ambiguity=0.0)   # every dense estimate ties
+        reg._dense_cfg = replace(shipped, pose=replace(shipped.pose, verdict=verdict))
+        est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+        assert est.reason == "ambiguous"
+        reg._dense_cfg = shipped
+        if witness:
+            reg.on_peer_result("b", invert_transform(T_GT), True, "merged", "ok", "confirmed", now=0.8)
+        drift(b, graphs, 2, 1.0)
+        dense = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.0)
+        coarse, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+        return reg, dense, coarse
+
+    reg, dense, coarse = after_a_tie(10.0)
+    assert dense.reason == coarse.reason == "awaiting_confirmation", (dense.reason, coarse.reason)
+    assert reg.counters["held_by_tie"] == 1 and rte(coarse.T, T_GT) < 0.2
+    reg, dense, coarse = after_a_tie(10.0, witness=True)
+    assert dense.verified and reg.counters["confirmed_by_peer"] == 1
+    reg, dense, coarse = after_a_tie(1.0)      # the tie is older than the memory
+    assert dense.reason == "awaiting_confirmation" and coarse.verified, coarse.reason
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
