@@ -345,23 +345,22 @@ class Peers:
         two agents that each saw one of two identical rooms make the same wrong slide, and in
         the 4-agent building bag a coarse estimate and the peer's unconfirmed dense one agreed on
         one."""
-        if not self.cfg.confirm_with_peer:
-            return False
-        for kind, (T, at) in self._witnesses.get(peer, {}).items():
-            if now - at <= self.cfg.witness_max_age_s and (kind == "confirmed" or hyp.mode == "dense") \
-                    and self._agree(hyp.T, T):
-                return True
-        return False
+        return self._witness_agrees(peer, hyp.T, now, ("confirmed", "dense") if hyp.mode == "dense"
+                                    else ("confirmed",))
 
     def _vouched(self, peer: str, reg: Registration, T: np.ndarray, now: float) -> bool:
         """Whether an estimate that the verdict refused only for its confidence is taken all
         the same: the peer's confirmed link agrees with it (vouched_min_confidence)."""
-        if reg.reason != "low_confidence" or reg.confidence < self.cfg.vouched_min_confidence \
-                or not self.cfg.confirm_with_peer:
+        return reg.reason == "low_confidence" and reg.confidence >= self.cfg.vouched_min_confidence \
+            and self._witness_agrees(peer, T, now, ("confirmed",))
+
+    def _witness_agrees(self, peer: str, T: np.ndarray, now: float, kinds: tuple[str, ...]) -> bool:
+        """Whether a witness of the peer of one of `kinds` ("confirmed", "dense"), no older than
+        witness_max_age_s, agrees with T (always False without confirm_with_peer)."""
+        if not self.cfg.confirm_with_peer:
             return False
-        confirmed = self._witnesses.get(peer, {}).get("confirmed")
-        return confirmed is not None and now - confirmed[1] <= self.cfg.witness_max_age_s \
-            and self._agree(T, confirmed[0])
+        return any(kind in kinds and now - at <= self.cfg.witness_max_age_s and self._agree(T, W)
+                   for kind, (W, at) in self._witnesses.get(peer, {}).items())
 
     def on_own_map(self, now: float) -> list[tuple[Estimate, DenseRequestMessage | None]]:
         """After the own map changed: estimates against the last coarse graph of every quiet
@@ -720,10 +719,9 @@ class Peers:
         if data == link.exchanged:      # nothing new to learn from the same two graphs
             return None
         # the points of a confirmed link at hand: new ones would only refine it
-        interval = (self.cfg.min_request_interval_s if link.confirmed is not None and link.dense_cloud is not None
-                    else self.cfg.search_request_interval_s)
-        if (link.peer_id in self.attached and link.confirmed is not None and link.dense_cloud is not None) \
-                or (link.confirmed is None and link.peer_id in self.placed):
+        settled = link.confirmed is not None and link.dense_cloud is not None
+        interval = self.cfg.min_request_interval_s if settled else self.cfg.search_request_interval_s
+        if (settled and link.peer_id in self.attached) or (link.confirmed is None and link.peer_id in self.placed):
             # settled: a placed peer whose points are at hand (dropped when its map moved), or
             # one that other agents' links place through a consistent triangle
             interval = max(interval, self.cfg.attached_request_interval_s)

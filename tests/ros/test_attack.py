@@ -14,7 +14,7 @@ from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest
 from sgreg_core.bench.replay_score import ground_truth
 from sgreg_core.geometry import yaw_transform
 from sgreg_core.metrics import two_agent_success
-from sgreg_core.runtime.auth import Keystore, init_keystore
+from sgreg_core.runtime.auth import AuthConfig, init_keystore
 from sgreg_ros import qos
 from sgreg_ros.signing import MessageAuth
 
@@ -115,14 +115,8 @@ def genuine_from_b(w, maps, keys, seconds=4.0):
     sub = w.node.create_subscription(CoarseGraph, "/b/sgreg/coarse", got.append, qos.COARSE_SUB)
     w.spin_until(lambda: False, seconds, publish_maps=maps)
     w.node.destroy_subscription(sub)
-    store, topic = Keystore(keys), "/b/sgreg/coarse"
-
-    def signed_by_b(msg):
-        sig = bytes(msg.signature)
-        unsigned = copy.deepcopy(msg)
-        unsigned.signature = b""
-        return store.check(msg.key_id, "b", MessageAuth._payload(unsigned, topic), sig) is None
-    return [m for m in got if signed_by_b(m)]
+    auth = MessageAuth(AuthConfig(keystore=str(keys)), "a", w.node.get_logger())   # as a checks
+    return [m for m in got if auth.check(m, "/b/sgreg/coarse", "b") is None]
 
 
 def test_replayed_signed_messages_change_nothing(fleet):
