@@ -35,7 +35,7 @@ def run(args) -> int:
     from ..replay import ReplayConfig, ground_truth_of, run_replay
 
     from sgreg_core.bench.bandwidth import HEADER, format_table
-    from sgreg_core.bench.merge_score import merge_of_records, score_merge
+    from sgreg_core.bench.merge_score import merge_of_records, merge_timeline, score_merge
     from sgreg_core.runtime.merge import MergeConfig
     from sgreg_core.bench.replay_report import PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, replay_report
     from sgreg_core.bench.replay_score import ground_truth, score_replay
@@ -68,7 +68,8 @@ def run(args) -> int:
     merged = merge_of_records(run_.records, list(gt["T_scene_map"]))
     frame = MergeConfig().merged_frame
     tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
-    merge = {**score_merge(merged, gt["T_scene_map"], tf_poses or None), "published_on_tf": bool(tf_poses)}
+    merge = {**score_merge(merged, gt["T_scene_map"], tf_poses or None), "published_on_tf": bool(tf_poses),
+             "while_replayed": merge_timeline(run_.records, gt["T_scene_map"])}
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
                                                    "overrides": cfg.overrides}, settle_s=cfg.settle_s,
                            merge=merge)
@@ -91,7 +92,8 @@ def run(args) -> int:
         ["dense latency median / p90", _lat(score.dense_latency_ms)],
     ] + [[f"merged frame ({merged.anchor}'s map)",
           f"{merge['attached']} of {merge['agents']} agents attached, {merge['wrong_links_kept']} wrong links "
-          f"kept, {merge['links_rejected']} rejected; max pose error " +
+          f"kept, {merge['links_rejected']} rejected, wrong for "
+          f"{merge['while_replayed']['wrong_s']:.0f} s of the replay; max pose error " +
           (f"{merge['max_pose_error_m']:.3f} m / {merge['max_pose_error_deg']:.2f} deg"
            if merge["max_pose_error_m"] is not None else "-")]
     ] + [[f"link during the bag, agent {a}", f"{b / 1e3:.2f} kB/s"]

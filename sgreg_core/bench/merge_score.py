@@ -10,6 +10,8 @@ Public API:
     merge_of_records(records, agents, cfg=None) -> MergeResult   what every agent's merger holds
                                    after these results (replay records, in time order)
     score_merge(result, T_scene_map, poses=None) -> dict
+    merge_timeline(records, T_scene_map, step_s=1.0, cfg=None) -> dict   how long the merged
+                                   frame held a wrong link or misplaced an agent while the bag ran
 """
 from __future__ import annotations
 
@@ -33,6 +35,40 @@ def merge_of_records(records, agents, cfg: MergeConfig | None = None) -> MergeRe
     merger.links.agents |= set(agents)
     merger.update()
     return merger.result
+
+
+def merge_timeline(records, T_scene_map: dict, step_s: float = 1.0,
+                   cfg: MergeConfig | None = None) -> dict:
+    """The merge every agent holds, re-scored every step_s of bag time: "seconds" scored,
+    "wrong_s" the seconds it kept a wrong link or placed an agent off by more than the wrong-link
+    criterion (what /tf carried then: a robot acting on the merged map acts on that), and the
+    "wrong_windows" [start, end] in bag seconds."""
+    records = sorted(records, key=lambda r: r.bag_t if r.bag_t is not None else r.t)
+    if not records:
+        return {"seconds": 0.0, "wrong_s": 0.0, "wrong_windows": []}
+    agents = sorted(T_scene_map)
+    merger = Merger(cfg or MergeConfig(), min(agents))
+    merger.links.agents |= set(agents)
+    stamp = [r.bag_t if r.bag_t is not None else r.t for r in records]
+    i, wrong, windows = 0, 0, []
+    steps = np.arange(stamp[0], stamp[-1] + step_s, step_s)
+    for t in steps:
+        while i < len(records) and stamp[i] <= t:
+            r = records[i]
+            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, stamp[i])
+            i += 1
+        merger.update()
+        s = score_merge(merger.result, T_scene_map)
+        off = s["max_pose_error_m"] is not None and (s["max_pose_error_m"] > WRONG_M
+                                                      or s["max_pose_error_deg"] > WRONG_DEG)
+        if s["wrong_links_kept"] or off:
+            wrong += 1
+            if windows and abs(windows[-1][1] - (t - step_s)) < 1e-9:
+                windows[-1][1] = float(t)
+            else:
+                windows.append([float(t), float(t)])
+    return {"seconds": float(len(steps) * step_s), "wrong_s": float(wrong * step_s),
+            "wrong_windows": windows}
 
 
 def score_merge(result: MergeResult, T_scene_map: dict, poses: dict | None = None) -> dict:

@@ -151,6 +151,8 @@ def _row(results: list[dict]) -> dict:
     links = [link for r in results for link in r.get("links", {}).values()]
     reg_links = [link for link in links if link["first_registrable_s"] is not None]
     kb = [r.get("kb_per_query_frame") for r in results]
+    # seconds the merged frame held a wrong link or misplaced an agent (what /tf carried)
+    merged_wrong = [(r.get("merge") or {}).get("while_replayed", {}).get("wrong_s") for r in results]
     return {
         "bags": len(results),
         "query_frames": len(frames),
@@ -160,6 +162,8 @@ def _row(results: list[dict]) -> dict:
         "wrong_verified": int(sum(f["verified"] and not f["correct"] for f in frames)),
         "bags_with_wrong_verified": int(sum(r["wrong_verified"] > 0 for r in results)),
         "median_time_to_success_s": _median(link["time_to_success_s"] for link in reg_links),
+        "merged_wrong_s": (float(sum(w for w in merged_wrong if w is not None))
+                           if any(w is not None for w in merged_wrong) else None),
         "links_never_registered": int(sum(link["time_to_success_s"] is None for link in reg_links)),
         "kb_per_query_frame": _median(kb),
         "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
@@ -198,14 +202,15 @@ def _num(v, fmt="{:.1f}") -> str:
 
 
 HEADER = ["", "bags", "frames", "registrable", "success", "success (registrable)",
-          "wrong verified", "time to success (median)", "never registered", "kB / frame",
+          "wrong verified", "merged map wrong", "time to success (median)", "never registered", "kB / frame",
           "coarse / dense ms"]
 
 
 def _cells(name: str, r: dict) -> list[str]:
     return [name, str(r["bags"]), str(r["query_frames"]), str(r["registrable_frames"]),
             _pct(r["success_rate"]), _pct(r["success_rate_registrable"]),
-            str(r["wrong_verified"]), _num(r["median_time_to_success_s"], "{:.1f} s"),
+            str(r["wrong_verified"]), _num(r.get("merged_wrong_s"), "{:.0f} s"),
+            _num(r["median_time_to_success_s"], "{:.1f} s"),
             str(r["links_never_registered"]), _num(r["kb_per_query_frame"]),
             f"{_num(r['coarse_latency_ms'], '{:.0f}')} / {_num(r['dense_latency_ms'], '{:.0f}')}"]
 

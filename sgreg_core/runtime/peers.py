@@ -33,7 +33,8 @@ the peer's dense cloud (so too when either map is levelled anew), and every merg
 that fails the verdict drops them too. Without a dense cloud of the peer nothing is verified
 at all, so new points are then asked for at the search interval, not the confirmed link's.
 An estimate the verdict refused only for its confidence is taken when the peer's confirmed
-link agrees with it (vouched_min_confidence).
+link agrees with it (vouched_min_confidence). With first_link_hold_s, a first confirmation also
+waits until the candidate has stood that long.
 
 With more agents, the merger (runtime/merge.py) checks every agent's links around cycles: while
 it rejects this agent's link with a peer, estimates of that link are withheld (reason
@@ -121,6 +122,16 @@ class PeersConfig:
         wait for the peer and keep searching: per-agent traffic rose 1.36x -> 1.84x of the
         two-agent figure (issue 15 allows 1.5x). Off by default; a fleet that would rather wait
         than publish a wrong pairwise frame between identical rooms turns it on.
+    first_link_hold_s: a link is first confirmed (by its own estimates or the peer's word) only
+        once its candidate, estimates that agree with it, has stood for this long while the
+        maps grow; 0: off. Two agents that start in two identical rooms (offices, hotel rooms)
+        register them onto each other, and nothing in two one-room maps tells the copies apart:
+        the building suite (config/suites/building.yaml) verifies such slides at first contact,
+        and they stand until a map grows past the run of identical rooms and contradicts them.
+        Holding first links lets that happen before anything is published: 5 s cuts the suite's
+        wrong verified frames 100 -> 24, 10 s -> 2, at a cost in success (70 -> 58 -> 45 %)
+        and time to the first link (5 -> 9 -> 15 s) (docs/RESULTS.md, session 8). Off by default: single rooms and apartments do
+        not alias so, and the real suite would lose its first seconds of every link.
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -168,6 +179,9 @@ class PeersConfig:
                                           "agrees with needs only this confidence", 0.0, 1.0, live=True)
     tie_memory_s: float = param(0.0, "after an ambiguous estimate, the link's own estimates "
                                 "do not confirm it for this long (0: off)", 0.0, 3600.0, live=True)
+    first_link_hold_s: float = param(0.0, "a link is first confirmed only once its candidate has "
+                                     "held this long (0: off; for floors of identical rooms)",
+                                     0.0, 3600.0, live=True)
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -244,6 +258,7 @@ class PeerLink:
     last_request_at: float = -np.inf
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
     candidate: Hypothesis | None = None
+    candidate_at: float = -np.inf   # when the candidate was first estimated
     confirmed: Hypothesis | None = None
     tie_at: float = -np.inf      # when an estimate of the link was last refused as ambiguous
 
@@ -333,7 +348,7 @@ class Peers:
         self._witnesses.setdefault(peer, {})[kind] = (invert_transform(T), now)
         link = self.links.get(peer)
         if self.cfg.confirm and link is not None and link.confirmed is None and link.candidate is not None \
-                and self._witnessed(link.candidate, peer, now):
+                and self._witnessed(link.candidate, peer, now) and self._held_long(link, now):
             self._confirm(link, link.candidate, "confirmed_by_peer")
 
     def _witnessed(self, hyp: Hypothesis, peer: str, now: float) -> bool:
@@ -659,25 +674,30 @@ class Peers:
                      f"({reg.inliers} inliers on {reg.evidence.objects} objects) lies "
                      f"{d[0]:.2f} m / {d[1]:.1f} deg from it")
             self._count("withdrawn")
-            link.confirmed, link.kept, link.candidate = None, None, hyp
+            link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, hyp, now
             return "contradicted"
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
-        if self._witnessed(hyp, link.peer_id, now):
+        cand = link.candidate
+        if cand is None or not self._agree(hyp.T, cand.T):
+            link.candidate, link.candidate_at = hyp, now
+            cand = None
+        if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
-        cand = link.candidate
         if cand is not None and self._agree(hyp.T, cand.T):
-            if self._independent(cand, hyp):
+            if self._independent(cand, hyp) and self._held_long(link, now):
                 if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
                     self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
                     return "ok"
                 self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
             if cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
-            return "awaiting_confirmation"
-        link.candidate = hyp
         return "awaiting_confirmation"
+
+    def _held_long(self, link: PeerLink, now: float) -> bool:
+        """Whether the link's candidate has stood long enough to be confirmed (first_link_hold_s)."""
+        return now - link.candidate_at >= self.cfg.first_link_hold_s
 
     def _independent(self, a: Hypothesis, b: Hypothesis) -> bool:
         """Whether two agreeing estimates may confirm a link: made from different data and,

@@ -61,3 +61,26 @@ def test_registrable_frames_and_time_to_first_success():
     assert link["first_registrable_s"] == 5.0 and link["first_success_s"] == 6.0
     assert link["time_to_success_s"] == 1.0
     assert score_replay(records, FRAMES).registrable_frames is None     # bags without objects
+
+
+def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():
+    """A wrong verified link of a -> b from t=2 until b's result at t=5 says the link is gone
+    (contradicted, link "none"), then a right one: the merged frame was wrong at t=2, 3, 4."""
+    from dataclasses import replace
+
+    from sgreg_core.bench.merge_score import merge_timeline
+
+    gt = ground_truth(FRAMES, "a", "b")
+    off = gt.copy()
+    off[0, 3] += 3.8                                   # one identical room over
+    records = [rec(1.0, "a", "b", np.eye(4), False),
+               rec(2.0, "a", "b", off, True),
+               rec(3.0, "a", "b", off, True, "merged"),
+               replace(rec(5.0, "a", "b", gt, False, "dense"), reason="contradicted", link="none"),
+               rec(6.0, "a", "b", gt, True),
+               rec(8.0, "a", "b", gt, True, "merged")]
+    tl = merge_timeline(records, FRAMES)
+    assert tl["wrong_s"] == 3.0 and tl["wrong_windows"] == [[2.0, 4.0]], tl
+    assert tl["seconds"] == 8.0
+    assert merge_timeline([r for r in records if r.T is not off], FRAMES)["wrong_s"] == 0.0
+    assert merge_timeline([], FRAMES) == {"seconds": 0.0, "wrong_s": 0.0, "wrong_windows": []}

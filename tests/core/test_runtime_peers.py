@@ -200,6 +200,30 @@ def test_after_a_tie_only_the_peers_word_confirms_for_a_while(model, graphs):
     assert dense.reason == "awaiting_confirmation" and coarse.verified, coarse.reason
 
 
+def test_a_first_link_waits_until_its_candidate_has_stood_first_link_hold_s(model, graphs):
+    """With first_link_hold_s, agreeing estimates from other data (and the peer's confirmed
+    link) confirm a link only once its candidate has stood that long; off, the second confirms."""
+    from sgreg_core.geometry import invert_transform
+
+    def coarse_after_dense(cfg, witness_at=None):
+        a, b, reg, _ = make_agents(model, graphs, cfg)
+        _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        dense = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+        assert dense.reason == "awaiting_confirmation", dense.reason
+        if witness_at is not None:
+            reg.on_peer_result("b", invert_transform(T_GT), True, "merged", "ok", "confirmed", now=witness_at)
+        return reg, [reg.on_coarse(b.coarse_message(seq), now=t)[0] for seq, t in ((2, 1.0), (3, 3.0))]
+
+    reg, (early, late) = coarse_after_dense(PeersConfig(first_link_hold_s=2.0))
+    assert early.reason == "awaiting_confirmation" and late.verified, (early.reason, late.reason)
+    assert rte(late.T, T_GT) < 0.2
+    reg, (early, late) = coarse_after_dense(PeersConfig(first_link_hold_s=2.0), witness_at=0.8)
+    assert early.reason == "awaiting_confirmation", early.reason   # the peer agreed at 0.8: too early
+    assert late.verified and reg.counters["confirmed_by_peer"] == 1
+    reg, (early, late) = coarse_after_dense(PeersConfig())
+    assert early.verified and late.verified
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
