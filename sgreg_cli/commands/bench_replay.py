@@ -92,6 +92,7 @@ def _offline_config(overrides: list[str]):
 
 
 def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
+    from sgreg_core.bench.merge_score import merge_report
     from sgreg_core.bench.replay_score import score_replay
     from sgreg_core.bench.replay_report import replay_report
 
@@ -104,7 +105,8 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
         maps = instance_maps_in_bag(job.path, gt.get("t_origin", 0.0))
         records = offline_replay(maps, model, _offline_config(args.overrides))
         score = score_replay(records, gt["T_scene_map"], gt.get("objects"))
-        return replay_report(job.path, score, None, {"backend": "offline"}, merge=_merge(records, gt))
+        return replay_report(job.path, score, None, {"backend": "offline"},
+                             merge=merge_report(records, gt["T_scene_map"])[1])
     from ..replay import ReplayConfig, run_replay
 
     # a short tail: a suite scores registration; `sgreg replay` measures the quiet link
@@ -114,15 +116,8 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
     run_ = run_replay(job.path, cfg, log=lambda s: None)
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
     return replay_report(job.path, score, run_, {"backend": "ros", "params_file": args.params_file,
-                                                 "overrides": cfg.overrides}, merge=_merge(run_.records, gt))
-
-
-def _merge(records, gt: dict) -> dict:
-    """The merged frame at the end of the bag, and how long it was wrong while the bag ran."""
-    from sgreg_core.bench.merge_score import merge_of_records, merge_timeline, score_merge
-
-    merged = merge_of_records(records, list(gt["T_scene_map"]))
-    return {**score_merge(merged, gt["T_scene_map"]), "while_replayed": merge_timeline(records, gt["T_scene_map"])}
+                                                 "overrides": cfg.overrides},
+                         merge=merge_report(run_.records, gt["T_scene_map"])[1])
 
 
 def run(args: argparse.Namespace) -> int:

@@ -35,7 +35,7 @@ def run(args) -> int:
     from ..replay import ReplayConfig, ground_truth_of, run_replay
 
     from sgreg_core.bench.bandwidth import HEADER, format_table
-    from sgreg_core.bench.merge_score import merge_of_records, merge_timeline, score_merge
+    from sgreg_core.bench.merge_score import merge_report
     from sgreg_core.runtime.merge import MergeConfig
     from sgreg_core.bench.replay_report import PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, replay_report
     from sgreg_core.bench.replay_score import ground_truth, score_replay
@@ -65,11 +65,10 @@ def run(args) -> int:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
-    merged = merge_of_records(run_.records, list(gt["T_scene_map"]))
     frame = MergeConfig().merged_frame
     tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
-    merge = {**score_merge(merged, gt["T_scene_map"], tf_poses or None), "published_on_tf": bool(tf_poses),
-             "while_replayed": merge_timeline(run_.records, gt["T_scene_map"])}
+    merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None)
+    merge["published_on_tf"] = bool(tf_poses)
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
                                                    "overrides": cfg.overrides}, settle_s=cfg.settle_s,
                            merge=merge)

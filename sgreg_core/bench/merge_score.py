@@ -7,11 +7,11 @@ pose T_merged<-x is compared with T_anchor<-x of the ground truth (the merged fr
 anchor's map frame).
 
 Public API:
-    merge_of_records(records, agents, cfg=None) -> MergeResult   what every agent's merger holds
-                                   after these results (replay records, in time order)
+    merge_report(records, T_scene_map, poses=None, step_s=1.0, cfg=None) -> (MergeResult, dict)
+                                   the merge every agent's merger holds after these results
+                                   (replay records) and its score, with "while_replayed": how
+                                   long it held a wrong link or misplaced an agent during the bag
     score_merge(result, T_scene_map, poses=None) -> dict
-    merge_timeline(records, T_scene_map, step_s=1.0, cfg=None) -> dict   how long the merged
-                                   frame held a wrong link or misplaced an agent while the bag ran
 """
 from __future__ import annotations
 
@@ -25,39 +25,32 @@ from .replay_score import ground_truth
 WRONG_M, WRONG_DEG = 0.5, 5.0
 
 
-def merge_of_records(records, agents, cfg: MergeConfig | None = None) -> MergeResult:
+def merge_report(records, T_scene_map: dict, poses: dict | None = None, step_s: float = 1.0,
+                 cfg: MergeConfig | None = None) -> tuple[MergeResult, dict]:
     """The merge every agent's merger computes from these registration results (they all hear
-    the same results, so they all hold this one)."""
-    merger = Merger(cfg or MergeConfig(), min(agents))
-    for r in sorted(records, key=lambda r: r.t):
-        merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence,
-                    r.bag_t if r.bag_t is not None else r.t)
-    merger.links.agents |= set(agents)
-    merger.update()
-    return merger.result
-
-
-def merge_timeline(records, T_scene_map: dict, step_s: float = 1.0,
-                   cfg: MergeConfig | None = None) -> dict:
-    """The merge every agent holds, re-scored every step_s of bag time: "seconds" scored,
-    "wrong_s" the seconds it kept a wrong link or placed an agent off by more than the wrong-link
-    criterion (what /tf carried then: a robot acting on the merged map acts on that), and the
-    "wrong_windows" [start, end] in bag seconds."""
-    records = sorted(records, key=lambda r: r.bag_t if r.bag_t is not None else r.t)
-    if not records:
-        return {"seconds": 0.0, "wrong_s": 0.0, "wrong_windows": []}
+    the same results, so they all hold this one) at the end of the bag, and its score_merge
+    (poses: as published, see there) with "while_replayed": the same merge re-scored every
+    step_s of bag time, "seconds" scored, "wrong_s" the seconds it kept a wrong link or placed
+    an agent off by more than the wrong-link criterion (what /tf carried then: a robot acting
+    on the merged map acts on that), and the "wrong_windows" [start, end] in bag seconds."""
     agents = sorted(T_scene_map)
     merger = Merger(cfg or MergeConfig(), min(agents))
     merger.links.agents |= set(agents)
+    records = sorted(records, key=lambda r: r.t)     # bag time grows with replay time
     stamp = [r.bag_t if r.bag_t is not None else r.t for r in records]
+    steps = np.arange(stamp[0], stamp[-1] + step_s, step_s) if records else np.zeros(0)
     i, wrong, windows = 0, 0, []
-    steps = np.arange(stamp[0], stamp[-1] + step_s, step_s)
-    for t in steps:
+
+    def take_until(t: float) -> None:
+        nonlocal i
         while i < len(records) and stamp[i] <= t:
             r = records[i]
             merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, stamp[i])
             i += 1
         merger.update()
+
+    for t in steps:
+        take_until(t)
         s = score_merge(merger.result, T_scene_map)
         off = s["max_pose_error_m"] is not None and (s["max_pose_error_m"] > WRONG_M
                                                       or s["max_pose_error_deg"] > WRONG_DEG)
@@ -67,8 +60,10 @@ def merge_timeline(records, T_scene_map: dict, step_s: float = 1.0,
                 windows[-1][1] = float(t)
             else:
                 windows.append([float(t), float(t)])
-    return {"seconds": float(len(steps) * step_s), "wrong_s": float(wrong * step_s),
-            "wrong_windows": windows}
+    take_until(np.inf)
+    timeline = {"seconds": float(len(steps) * step_s), "wrong_s": float(wrong * step_s),
+                "wrong_windows": windows}
+    return merger.result, {**score_merge(merger.result, T_scene_map, poses), "while_replayed": timeline}
 
 
 def score_merge(result: MergeResult, T_scene_map: dict, poses: dict | None = None) -> dict:

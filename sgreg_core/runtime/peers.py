@@ -130,8 +130,9 @@ class PeersConfig:
         and they stand until a map grows past the run of identical rooms and contradicts them.
         Holding first links lets that happen before anything is published: 5 s cuts the suite's
         wrong verified frames 100 -> 24, 10 s -> 2, at a cost in success (70 -> 58 -> 45 %)
-        and time to the first link (5 -> 9 -> 15 s) (docs/RESULTS.md, session 8). Off by default: single rooms and apartments do
-        not alias so, and the real suite would lose its first seconds of every link.
+        and time to the first link (5 -> 9 -> 15 s; docs/RESULTS.md, session 8). Off by
+        default: single rooms and apartments do not alias so, and the real suite would lose
+        the first seconds of every link.
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -685,7 +686,7 @@ class Peers:
         if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
-        if cand is not None and self._agree(hyp.T, cand.T):
+        if cand is not None:    # hyp agrees with the link's candidate
             if self._independent(cand, hyp) and self._held_long(link, now):
                 if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
                     self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)

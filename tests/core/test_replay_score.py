@@ -68,7 +68,10 @@ def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():
     (contradicted, link "none"), then a right one: the merged frame was wrong at t=2, 3, 4."""
     from dataclasses import replace
 
-    from sgreg_core.bench.merge_score import merge_timeline
+    from sgreg_core.bench.merge_score import merge_report
+
+    def merge_timeline(records, frames):
+        return merge_report(records, frames)[1]["while_replayed"]
 
     gt = ground_truth(FRAMES, "a", "b")
     off = gt.copy()
