@@ -34,7 +34,9 @@ that fails the verdict drops them too. Without a dense cloud of the peer nothing
 at all, so new points are then asked for at the search interval, not the confirmed link's.
 An estimate the verdict refused only for its confidence is taken when the peer's confirmed
 link agrees with it (vouched_min_confidence). With first_link_hold_s, a first confirmation also
-waits until the candidate has stood that long.
+waits until the candidate has stood that long; with withdraw_on_tie, a confirmed link is
+withdrawn when an estimate from new data finds a competing pose nearly as well supported
+(refused as ambiguous). Both are for floors of identical rooms (config/profiles/identical_rooms.yaml).
 
 With more agents, the merger (runtime/merge.py) checks every agent's links around cycles: while
 it rejects this agent's link with a peer, estimates of that link are withheld (reason
@@ -133,6 +135,14 @@ class PeersConfig:
         and time to the first link (5 -> 9 -> 15 s; docs/RESULTS.md, session 8). Off by
         default: single rooms and apartments do not alias so, and the real suite would lose
         the first seconds of every link.
+    withdraw_on_tie: a confirmed link is withdrawn (counter withdrawn_by_tie, logged) when an
+        estimate from new data (dense or coarse, not merged) is refused as ambiguous: the maps
+        have grown to show a second pose nearly as well supported, so the link may be a slide
+        between identical rooms. Nothing is published for the peer until a link is confirmed
+        again, and the peer and the merger stop counting on it. With first_link_hold_s 10 it
+        cuts the building suite's merged map wrong from 17 s to 3 s; alone it lets links come
+        back by the peer's word before the tie is settled (more wrong frames, not fewer), so
+        it is off by default and on in the identical-rooms profile (docs/RESULTS.md, session 9).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -180,6 +190,8 @@ class PeersConfig:
                                           "agrees with needs only this confidence", 0.0, 1.0, live=True)
     tie_memory_s: float = param(0.0, "after an ambiguous estimate, the link's own estimates "
                                 "do not confirm it for this long (0: off)", 0.0, 3600.0, live=True)
+    withdraw_on_tie: bool = param(False, "a confirmed link is withdrawn when an estimate from new "
+                                  "data ties (is refused as ambiguous)")
     first_link_hold_s: float = param(0.0, "a link is first confirmed only once its candidate has "
                                      "held this long (0: off; for floors of identical rooms)",
                                      0.0, 3600.0, live=True)
@@ -654,6 +666,12 @@ class Peers:
         if not reg.success:
             if reg.reason == "ambiguous":
                 link.tie_at = now
+                if link.confirmed is not None and not merged and self.cfg.withdraw_on_tie:
+                    self.log(f"link to {link.peer_id} withdrawn: a {reg.mode} estimate from new data "
+                             f"finds a competing pose nearly as well supported (ambiguity "
+                             f"{reg.evidence.ambiguity:.2f})")
+                    self._count("withdrawn_by_tie")
+                    link.confirmed, link.kept, link.candidate = None, None, None
             if merged:   # the kept correspondences no longer hold on the current maps
                 link.kept = None
                 self._count("kept_dropped")

@@ -84,6 +84,11 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
     assert s["rows"]["held-out rooms (scene0007)"]["success_rate_registrable"] == 0.5
     assert s["rows"]["held-out rooms (scene0007)"]["median_time_to_success_s"] == 2.0
     assert s["rows"]["rooms seen in training"]["wrong_verified"] == 1
+    # generated scenes held out of tuning (not of the network's training) say so
+    synth_held = load_suite(write(tmp_path, SUITE.replace("held_out: [scene0007]",
+                                                          f"held_out: [{suite.jobs[-1].room}]")))
+    rows = summarize(results, synth_held)["rows"]
+    assert rows["the other scenes"]["registrable_frames"] == 2 and "rooms seen in training" not in rows
     rel = reliability([f for r in results.values() for f in r["frames"]], bins=2)
     assert rel["n"] == 5 and rel["bins"][0]["n"] == 2 and rel["bins"][1]["n"] == 3
     assert np.isclose(rel["bins"][1]["correct"], 2 / 3)

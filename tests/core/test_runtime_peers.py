@@ -268,6 +268,29 @@ def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
     assert est.verified and est.mode == "coarse" and rte(est.T, W @ T_GT) < 0.2
 
 
+def test_a_tie_from_new_data_withdraws_a_confirmed_link_with_withdraw_on_tie(model, graphs):
+    """withdraw_on_tie: a dense estimate from new data refused as ambiguous takes a confirmed
+    link back (nothing published until it is confirmed again); off, the link stays."""
+    def tie_after_confirmation(withdraw):
+        a, b, reg, logs = confirmed_link(model, graphs, PeersConfig(min_request_interval_s=0.0,
+                                                                    withdraw_on_tie=withdraw))
+        shipped = reg._dense_cfg
+        verdict = replace(shipped.pose.verdict, max_ambiguity=0.0)   # every dense estimate ties
+        reg._dense_cfg = replace(shipped, pose=replace(shipped.pose, verdict=verdict))
+        drift(b, graphs, 3, 2.0)
+        _, req = reg.on_coarse(b.coarse_message(3), now=2.0)
+        req = req or reg.links["b"].pending
+        est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.5)
+        assert est.reason == "ambiguous" and not est.verified, est.reason
+        return reg, est, logs
+
+    reg, est, logs = tie_after_confirmation(True)
+    assert est.link == "none" and reg.links["b"].kept is None
+    assert reg.counters["withdrawn_by_tie"] == 1 and any("competing pose" in line for line in logs)
+    reg, est, _ = tie_after_confirmation(False)
+    assert est.link == "confirmed" and reg.counters["withdrawn_by_tie"] == 0
+
+
 def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, graphs):
     a, b, reg, _ = confirmed_link(model, graphs)
     assert reg.links["b"].kept is not None

@@ -16,11 +16,15 @@ from sgreg_ros.registration_node import PARAMS as REGISTRATION
 YAML = Path(__file__).resolve().parents[2] / "config" / "sgreg.yaml"
 
 
-def test_the_parameter_file_names_only_real_parameters_with_valid_values():
+@pytest.mark.parametrize("path", [YAML, *sorted((YAML.parent / "profiles").glob("*.yaml"))],
+                         ids=lambda p: p.name)
+def test_the_parameter_files_name_only_real_parameters_with_valid_values(path):
+    """config/sgreg.yaml and every profile laid over it (config/profiles/)."""
     declared = {p.name: p for p in AGENT + REGISTRATION}
-    values = yaml.safe_load(YAML.read_text())["/**"]["ros__parameters"]
+    values = yaml.safe_load(path.read_text())["/**"]["ros__parameters"]
+    assert values, f"{path.name} sets no parameter"
     unknown = sorted(set(values) - set(declared))
-    assert not unknown, f"config/sgreg.yaml sets parameters no node declares: {unknown}"
+    assert not unknown, f"{path.name} sets parameters no node declares: {unknown}"
     for name, value in values.items():
         check(declared[name], value)          # raises with a clear line when invalid
 
