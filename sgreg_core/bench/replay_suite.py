@@ -179,8 +179,8 @@ def summarize(results: dict[str, dict], suite: Suite) -> dict:
     if held:
         groups["held-out rooms (" + ", ".join(suite.held_out) + ")"] = held
         # real rooms are held out of the network's training; generated ones out of tuning
-        rest = "rooms seen in training" if all(SCENE.fullmatch(r + "_00") for r in suite.held_out) \
-            else "the other scenes"
+        rest = "the other scenes" if all(jobs[n].capture == "synthetic" for n in held) \
+            else "rooms seen in training"
         groups[rest] = [n for n in jobs if n not in held]
     for capture in ("single", "cross", "synthetic"):
         names = [n for n, j in jobs.items() if j.capture == capture]

@@ -667,11 +667,9 @@ class Peers:
             if reg.reason == "ambiguous":
                 link.tie_at = now
                 if link.confirmed is not None and not merged and self.cfg.withdraw_on_tie:
-                    self.log(f"link to {link.peer_id} withdrawn: a {reg.mode} estimate from new data "
-                             f"finds a competing pose nearly as well supported (ambiguity "
-                             f"{reg.evidence.ambiguity:.2f})")
-                    self._count("withdrawn_by_tie")
-                    link.confirmed, link.kept, link.candidate = None, None, None
+                    self._withdraw(link, "withdrawn_by_tie", f"a {reg.mode} estimate from new data "
+                                   "finds a competing pose nearly as well supported (ambiguity "
+                                   f"{reg.evidence.ambiguity:.2f})", None, now)
             if merged:   # the kept correspondences no longer hold on the current maps
                 link.kept = None
                 self._count("kept_dropped")
@@ -689,11 +687,9 @@ class Peers:
                 link.kept = None
                 return "disagrees_with_link"
             d = rte(hyp.T, link.confirmed.T), rre(hyp.T, link.confirmed.T)
-            self.log(f"link to {link.peer_id} withdrawn: a {reg.mode} estimate from new data "
-                     f"({reg.inliers} inliers on {reg.evidence.objects} objects) lies "
-                     f"{d[0]:.2f} m / {d[1]:.1f} deg from it")
-            self._count("withdrawn")
-            link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, hyp, now
+            self._withdraw(link, "withdrawn", f"a {reg.mode} estimate from new data ({reg.inliers} "
+                           f"inliers on {reg.evidence.objects} objects) lies {d[0]:.2f} m / "
+                           f"{d[1]:.1f} deg from it", hyp, now)
             return "contradicted"
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
@@ -713,6 +709,14 @@ class Peers:
             if cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
         return "awaiting_confirmation"
+
+    def _withdraw(self, link: PeerLink, counter: str, why: str, candidate: Hypothesis | None,
+                  now: float) -> None:
+        """The confirmed link is taken back (logged, counted): its kept correspondences go, and
+        candidate (or nothing) is what a new link starts from."""
+        self.log(f"link to {link.peer_id} withdrawn: {why}")
+        self._count(counter)
+        link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, candidate, now
 
     def _held_long(self, link: PeerLink, now: float) -> bool:
         """Whether the link's candidate has stood long enough to be confirmed (first_link_hold_s)."""
