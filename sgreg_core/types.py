@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .geometry import transform_points
+
 if TYPE_CHECKING:    # maps/level.py imports this module
     from .maps.level import Levelling
 
@@ -30,6 +32,11 @@ class InstanceMap:
     labels: dict[int, str]
     scores: dict[int, float] = field(default_factory=dict)
     colors: np.ndarray | None = None
+
+    def transformed(self, T: np.ndarray) -> "InstanceMap":
+        """The same map with its points moved by the 4x4 transform T."""
+        return InstanceMap(transform_points(T, self.points).astype(np.float32), self.instance,
+                           self.labels, self.scores, self.colors)
 
 
 @dataclass

@@ -124,12 +124,6 @@ def _random_4dof(rng: np.random.Generator, max_translation: float) -> np.ndarray
                          [r * np.cos(phi), r * np.sin(phi), rng.uniform(-0.5, 0.5)])
 
 
-def _moved(imap: InstanceMap, T: np.ndarray) -> InstanceMap:
-    return InstanceMap(points=transform_points(T, imap.points).astype(np.float32),
-                       instance=imap.instance, labels=imap.labels, scores=imap.scores,
-                       colors=imap.colors)
-
-
 def _pair_config(cfg: CaseConfig, rng: np.random.Generator, noise: str = "") -> PairConfig:
     return PairConfig(overlap=float(rng.uniform(*cfg.overlap)),
                       disjoint="halves" if rng.random() < cfg.halves_prob else "band",
@@ -179,7 +173,7 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
         for s in range(cfg.rescan_seeds if held_out else cfg.rescan_seen_seeds):
             rng = np.random.default_rng([cfg.seed, _SEED["rescan"], d, s])
             A = _random_4dof(rng, cfg.max_translation)
-            out.append(Case("rescan", f"{a}->{b}#{s}", _moved(src0, A), ref,
+            out.append(Case("rescan", f"{a}->{b}#{s}", src0.transformed(A), ref,
                             T_ab @ invert_transform(A), pairs, iou, held_out))
     return out
 

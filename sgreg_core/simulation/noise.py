@@ -46,6 +46,7 @@ Public API:
     apply_noise(imap, noise, rng) -> InstanceMap      every kind but tilt
     tilt_transform(noise, rng) -> (4, 4) float64      a random tilt about the origin (identity
                                                       when tilt is off)
+    tilt_rotation(angle_deg, axis_deg) -> (4, 4)      a given tilt about the origin
     tilt_about(center, T) -> (4, 4) float64           T's rotation about `center` instead
 """
 from __future__ import annotations
@@ -285,14 +286,25 @@ class NoiseConfig:
         return cls(**rates)
 
 
+def tilt_rotation(angle_deg: float, axis_deg: float) -> np.ndarray:
+    """(4, 4): a rotation by angle_deg about the horizontal axis at axis_deg from x, through
+    the origin."""
+    return _tilt(np.radians(angle_deg), np.radians(axis_deg))
+
+
+def _tilt(angle: float, axis: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(angle * np.array([np.cos(axis), np.sin(axis), 0.0])).as_matrix()
+    return T
+
+
 def tilt_transform(noise: NoiseConfig, rng: np.random.Generator) -> np.ndarray:
     """A random tilt of the gravity direction, about the origin (identity when tilt is off)."""
-    T = np.eye(4)
-    if noise.tilt > 0:
-        low = noise.tilt_min if noise.tilt >= noise.tilt_min else 0.0
-        angle, axis = np.radians(rng.uniform(low, noise.tilt)), rng.uniform(0, 2 * np.pi)
-        T[:3, :3] = Rotation.from_rotvec(angle * np.array([np.cos(axis), np.sin(axis), 0.0])).as_matrix()
-    return T
+    if noise.tilt <= 0:
+        return np.eye(4)
+    low = noise.tilt_min if noise.tilt >= noise.tilt_min else 0.0
+    angle, axis = np.radians(rng.uniform(low, noise.tilt)), rng.uniform(0, 2 * np.pi)
+    return _tilt(angle, axis)
 
 
 def tilt_about(center: np.ndarray, T: np.ndarray) -> np.ndarray:

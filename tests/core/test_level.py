@@ -2,24 +2,11 @@
 registration of tilted maps back in their own frames."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from sgreg_core.geometry import invert_transform, transform_points
 from sgreg_core.maps.level import LevelConfig, estimate_level, level_map, rotation_between
+from sgreg_core.simulation.noise import tilt_rotation
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
-from sgreg_core.types import InstanceMap
-
-
-def tilt(deg: float, axis_deg: float) -> np.ndarray:
-    a = np.radians(axis_deg)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(deg) * np.array([np.cos(a), np.sin(a), 0.0])).as_matrix()
-    return T
-
-
-def tilted(imap: InstanceMap, T: np.ndarray) -> InstanceMap:
-    return InstanceMap(transform_points(T, imap.points).astype(np.float32), imap.instance,
-                       imap.labels, imap.scores, imap.colors)
 
 
 def angle(a, b) -> float:
@@ -33,8 +20,8 @@ def scene():
 
 @pytest.mark.parametrize("deg,axis", [(0.7, 10.0), (2.0, 130.0), (6.0, 250.0)])
 def test_gravity_of_a_tilted_map_is_found(scene, deg, axis):
-    T = tilt(deg, axis)
-    lev = estimate_level(tilted(scene, T).points)
+    T = tilt_rotation(deg, axis)
+    lev = estimate_level(scene.transformed(T).points)
     true_up = T[:3, :3] @ [0.0, 0.0, 1.0]
     assert lev.ok and angle(lev.up, true_up) < 0.15
     assert abs(lev.tilt_deg - deg) < 0.15
@@ -43,7 +30,7 @@ def test_gravity_of_a_tilted_map_is_found(scene, deg, axis):
 
 
 def test_level_map_levels_and_says_so(scene):
-    imap, lev = level_map(tilted(scene, tilt(1.5, 40.0)))
+    imap, lev = level_map(scene.transformed(tilt_rotation(1.5, 40.0)))
     assert lev.ok and abs(lev.tilt_deg - 1.5) < 0.15
     assert abs(estimate_level(imap.points).tilt_deg) < 0.15
     same, off = level_map(scene, LevelConfig(enabled=False))
@@ -53,7 +40,7 @@ def test_level_map_levels_and_says_so(scene):
 def test_what_cannot_be_levelled_is_left_as_it_is(scene):
     few = estimate_level(scene.points[:50])
     assert not few.ok and "too few points" in few.reason and np.allclose(few.R, np.eye(3))
-    steep = estimate_level(tilted(scene, tilt(30.0, 0.0)).points, LevelConfig(max_tilt_deg=20.0))
+    steep = estimate_level(scene.transformed(tilt_rotation(30.0, 0.0)).points, LevelConfig(max_tilt_deg=20.0))
     assert not steep.ok and np.allclose(steep.R, np.eye(3)) and "max_tilt_deg" in steep.reason
     # a map of one tilted plane only (no walls, no floor) gives no gravity it cannot support
     rng = np.random.default_rng(0)
@@ -80,8 +67,8 @@ def test_register_tilted_maps_gives_a_full_pose_between_the_maps(scene):
     from sgreg_core.simulation.pairs import PairConfig, make_pair
 
     pair = make_pair(scene, PairConfig(overlap=0.7), np.random.default_rng(3))
-    S, R = tilt(1.8, 20.0), tilt(1.2, 200.0)
-    src, ref = tilted(pair.src, S), tilted(pair.ref, R)
+    S, R = tilt_rotation(1.8, 20.0), tilt_rotation(1.2, 200.0)
+    src, ref = pair.src.transformed(S), pair.ref.transformed(R)
     T_gt = R @ pair.T_src_ref @ invert_transform(S)
     cfg, timings = PipelineConfig(), {}
     reg = register_graphs(load_model(), *build_graphs(src, ref, cfg, timings), cfg, timings)

@@ -2,28 +2,16 @@
 the sender's levelling, and the transform a peer publishes is between the maps as they are."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from sgreg_core.geometry import invert_transform, transform_points
+from sgreg_core.geometry import invert_transform
 from sgreg_core.metrics import rre, rte
 from sgreg_core.net.model import load_model
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
 from sgreg_core.runtime.peers import Peers, PeersConfig
 from sgreg_core.simulation.pairs import PairConfig, make_pair
+from sgreg_core.simulation.noise import tilt_rotation
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
-
-
-def tilt(deg: float, axis_deg: float) -> np.ndarray:
-    a = np.radians(axis_deg)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(deg) * np.array([np.cos(a), np.sin(a), 0.0])).as_matrix()
-    return T
-
-
-def tilted(imap: InstanceMap, T: np.ndarray) -> InstanceMap:
-    return InstanceMap(transform_points(T, imap.points).astype(np.float32), imap.instance,
-                       imap.labels, imap.scores, imap.colors)
 
 
 @pytest.fixture(scope="module")
@@ -33,11 +21,11 @@ def model():
 
 def test_tilted_agents_publish_the_transform_between_their_maps(model):
     pair = make_pair(generate_scene(6, SynthConfig(rooms=2)), PairConfig(overlap=0.8), np.random.default_rng(2))
-    A, B = tilt(1.7, 30.0), tilt(1.1, 160.0)       # each robot's gravity error
+    A, B = tilt_rotation(1.7, 30.0), tilt_rotation(1.1, 160.0)       # each robot's gravity error
     a = AgentCore(AgentConfig(name="a"), model)
     b = AgentCore(AgentConfig(name="b"), model)
-    assert a.take_map(tilted(pair.src, A), 1, 0.0) is None
-    assert b.take_map(tilted(pair.ref, B), 1, 0.0) is None
+    assert a.take_map(pair.src.transformed(A), 1, 0.0) is None
+    assert b.take_map(pair.ref.transformed(B), 1, 0.0) is None
     assert abs(a.level.tilt_deg - 1.7) < 0.2 and abs(b.level.tilt_deg - 1.1) < 0.2
     msg = b.coarse_message(1)
     assert np.allclose(msg.level, b.level.R)
@@ -56,12 +44,12 @@ def test_tilted_agents_publish_the_transform_between_their_maps(model):
 def test_a_growing_map_keeps_its_levelling(model):
     """Small changes of the estimate do not re-level the map (its frame would move under the
     peers' kept correspondences); a real change does."""
-    scene = tilted(generate_scene(6, SynthConfig(rooms=2)), tilt(1.5, 80.0))
+    scene = generate_scene(6, SynthConfig(rooms=2)).transformed(tilt_rotation(1.5, 80.0))
     a = AgentCore(AgentConfig(name="a"), model)
     a.take_map(scene, 1, 0.0)
     first = a.level
     keep = np.random.default_rng(0).random(len(scene.points)) < 0.9
     a.take_map(InstanceMap(scene.points[keep], scene.instance[keep], scene.labels), 2, 1.0)
     assert a.level is first
-    a.take_map(tilted(scene, tilt(2.5, 0.0)), 3, 2.0)       # the map leans 2.5 deg more: re-levelled
+    a.take_map(scene.transformed(tilt_rotation(2.5, 0.0)), 3, 2.0)       # the map leans 2.5 deg more: re-levelled
     assert a.level is not first and abs(a.level.tilt_deg - first.tilt_deg) > 1.0
