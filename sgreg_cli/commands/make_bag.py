@@ -124,11 +124,9 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from ..bag_types import typestore
     from sgreg_ros.convert import instance_map_to_msg, transform_msg
 
-    from sgreg_core.geometry import transform_points
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
     from sgreg_core.simulation.walks import WalkConfig, level_transform, simulate
-    from sgreg_core.types import InstanceMap
 
     out = Path(out)
     if out.exists():
@@ -141,17 +139,12 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     except InstanceMapError as exc:
         raise BagSpecError(str(exc)) from None
 
-    def moved(imap, T):
-        return InstanceMap(points=transform_points(T, imap.points).astype(np.float32),
-                           instance=imap.instance, labels=imap.labels, scores=imap.scores,
-                           colors=imap.colors)
-
     T_level = level_transform(scene) if spec.level else np.eye(4)
     T_b_capture = np.eye(4)   # b's capture frame -> a's scan frame
     if scene_b is not None:
         T_b_capture = rescan_transform(spec.scan, spec.scan_b, spec.gt)
-        scene_b = moved(scene_b, T_level @ T_b_capture)
-    scene = moved(scene, T_level)
+        scene_b = scene_b.transformed(T_level @ T_b_capture)
+    scene = scene.transformed(T_level)
     cfg = WalkConfig(agents=spec.agents, opposite=spec.opposite, mapping_period=spec.mapping_period,
                      voxel=spec.voxel, start_b=spec.start_b,
                      sensor=SensorConfig(max_range=spec.range, hfov_deg=spec.fov),

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry import invert_transform, transform_points, yaw_transform
+from ..geometry import invert_transform, yaw_transform
 from ..maps.instance_map import labelled_mask, select_points
 from ..metrics import rre, rte
 from ..net.model import SGRegModel
@@ -81,7 +81,7 @@ def scale_cases(cfg: ScaleConfig) -> list[tuple[int, InstanceMap, InstanceMap, n
         src = select_points(scene, in_src & (owner | ~shared))
         ref = select_points(scene, in_ref & (~owner | ~shared))
         T = yaw_transform(rng.uniform(-np.pi, np.pi), (*rng.uniform(-10, 10, 2), 0.0))
-        src = replace(src, points=transform_points(invert_transform(T), src.points).astype(np.float32))
+        src = src.transformed(invert_transform(T))
         out.append((n, src, ref, T))
     return out
 

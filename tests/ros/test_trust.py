@@ -121,9 +121,7 @@ def test_a_contradicted_link_is_withdrawn_over_dds(ros, tmp_path):
             [(r.agent_id, r.mode, r.reason) for r in w.results[-6:]]
         # b's front end re-anchors its map: b's frame jumps by W
         W = yaw_transform(np.radians(75.0), (3.0, -2.0, 0.0))
-        moved = {"a": maps["a"], "b": InstanceMap(points=transform_points(W, maps["b"].points).astype(np.float32),
-                                                  instance=maps["b"].instance, labels=maps["b"].labels,
-                                                  scores=maps["b"].scores)}
+        moved = {"a": maps["a"], "b": maps["b"].transformed(W)}
         new_frames = {"a": frames["a"], "b": frames["b"] @ np.linalg.inv(W)}
         n_results = len(w.results)
 
