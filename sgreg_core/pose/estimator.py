@@ -42,6 +42,11 @@ class PoseConfig:
     verify_voxel:        m, voxel of the clouds used for verification (and ICP).
     verify_tau:          m, support distance of the verification.
     footprint_cell:      m, grid cell of the reference footprint (verify.Footprint).
+    footprint_rim:       cells of the footprint's outer edge the fitness leaves out (where a
+                         partial map has the floor but not yet the wall; verify.Footprint).
+                         0 (all of it) by default: 1 verifies more right poses of partial
+                         rooms, but also more slides on floors of identical rooms
+                         (docs/VERDICT.md section 7).
     verify_max_points:   source points kept for verification (seeded random subsample).
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
@@ -63,6 +68,7 @@ class PoseConfig:
     verify_voxel: float = 0.05
     verify_tau: float = 0.1
     footprint_cell: float = 0.2
+    footprint_rim: int = 0
     verify_max_points: int = 1500
     icp: bool = False
     icp_max_iters: int = 20
@@ -70,6 +76,10 @@ class PoseConfig:
     verdict: VerdictConfig = field(default_factory=VerdictConfig)
     gnc: GncConfig = field(default_factory=GncConfig)
     seed: int = 0
+
+    def __post_init__(self):
+        if self.footprint_rim < 0:
+            raise ValueError(f"footprint_rim must be >= 0 cells, got {self.footprint_rim}")
 
 
 @dataclass
@@ -395,4 +405,9 @@ def _verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | None:
     if sc is None or rc is None:
         return None
     return CloudVerifier(sc, rc, cfg.verify_voxel, cfg.verify_tau, cfg.verify_max_points,
-                         cfg.seed, cfg.footprint_cell)
+                         cfg.seed, cfg.footprint_cell, cfg.footprint_rim)
+
+
+def reference_cloud_for(cloud: np.ndarray, cfg: PoseConfig) -> ReferenceCloud:
+    """The ReferenceCloud of a map's cloud as estimate_pose with cfg verifies against it."""
+    return ReferenceCloud(cloud, cfg.verify_voxel, cfg.footprint_cell, cfg.footprint_rim)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sgreg_cli.main import main
-from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
-                             make_T, yaw_rotation)
+from sgreg_core.pose import (CloudVerifier, PoseConfig, apply_T, estimate_pose,
+                             make_T, reference_cloud_for, yaw_rotation)
 
 ROOM = np.array([8.0, 6.0, 3.0])
 
@@ -171,6 +171,25 @@ def test_floor_on_floor_is_no_evidence():
     assert other.footprint_fitness < 0.2   # the floor alone would have given ~0.8
 
 
+def test_a_wall_the_reference_never_saw_does_not_count_against_a_right_pose():
+    """The reference holds the floor up to 15 cm from the x = 0 wall but not the wall (its
+    instance was dropped, the view cut off): at the right pose the source's wall lands on the
+    footprint's rim, unsupported. With footprint_rim the fitness leaves the rim out, so the
+    right pose keeps its support; a pose shifted by a metre still puts furniture where the
+    reference has none."""
+    rng = np.random.default_rng(24)
+    room = box_room(rng)
+    seen = room[room[:, 0] > 0.15]
+    fitness = {rim: CloudVerifier(room, seen, voxel=0.05, footprint_rim=rim)(np.eye(4))
+               .footprint_fitness for rim in (0, 1)}
+    assert fitness[0] < 0.9 < fitness[1]
+    shifted = CloudVerifier(room, seen, voxel=0.05, footprint_rim=1)(
+        make_T(np.eye(3), [1.0, 0.0, 0.0]))
+    assert shifted.footprint_fitness < 0.5
+    with pytest.raises(ValueError, match="rim"):
+        CloudVerifier(room, seen, footprint_rim=-1)
+
+
 def test_prebuilt_reference_cloud_gives_the_same_verdict():
     rng = np.random.default_rng(22)
     room = box_room(rng)
@@ -180,7 +199,7 @@ def test_prebuilt_reference_cloud_gives_the_same_verdict():
     cfg = PoseConfig(icp=True)
     a = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=cfg)
     b = estimate_pose(src, ref, src_cloud=room,
-                      ref_cloud=ReferenceCloud(ref_cloud, cfg.verify_voxel, cfg.footprint_cell),
+                      ref_cloud=reference_cloud_for(ref_cloud, cfg),
                       cfg=cfg)
     assert a.success and b.success
     np.testing.assert_allclose(a.T, b.T, atol=1e-9)

@@ -80,6 +80,19 @@ def test_different_rooms_are_not_registered(data):
         assert code == 1 and res["success"] is False and res["reason"] != "ok"
 
 
+def test_set_overrides_the_pipeline_config(data, tmp_path, capsys):
+    """--set reaches the verdict (an impossible inlier count refuses the easy pair); a key that
+    does not exist or a value out of range is one line on stderr and exit 2, not a traceback."""
+    root, _ = data
+    code, res = _register(root, "src", "ref", "--set", "pose.verdict.min_inliers=100000",
+                          "--set", "pose.footprint_rim=1")
+    assert code == 1 and res["reason"] == "too_few_inliers"
+    for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.verdict.min_inliers"):
+        code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad
+
+
 @pytest.mark.parametrize("problem", ["missing", "malformed"])
 def test_bad_input_is_one_line_exit_2(data, tmp_path, capsys, problem):
     root, _ = data
