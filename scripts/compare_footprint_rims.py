@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ import numpy as np
 from sgreg_core.bench.cases import CaseConfig, build_cases
 from sgreg_core.geometry import yaw_transform
 from sgreg_core.pipeline import PipelineConfig, build_graphs, node_cloud, reference_cloud
-from sgreg_core.pose import CloudVerifier, reference_cloud_for
+from sgreg_core.pose import CloudVerifier, ReferenceCloud
 
 SETTINGS = ("clean", "noisy", "frontend")
 
@@ -49,7 +48,7 @@ def main() -> None:
     args = p.parse_args()
 
     cases = build_cases(CaseConfig(n=args.n, seed=args.seed, rooms=tuple(args.rooms)), SETTINGS)
-    pipe = replace(PipelineConfig(), mode="dense")
+    pipe = PipelineConfig()    # dense
     min_share = pipe.pose.verdict.min_footprint_share
     scores = {rim: {s: {"right": [], "wrong": []} for s in SETTINGS} for rim in args.rims}
     for k, case in enumerate(cases):
@@ -57,11 +56,11 @@ def main() -> None:
         T = ref_graph.level.T @ case.T_gt @ np.linalg.inv(src_graph.level.T)  # levelled frames
         src = node_cloud(src_graph)
         wrong = wrong_poses(T, src.mean(0))
+        pose = pipe.pose_config()
+        reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         for rim in args.rims:
-            pose = replace(pipe.pose_config(), footprint_rim=rim)
-            verify = CloudVerifier(src, reference_cloud_for(reference_cloud(ref_graph), pose),
-                                   pose.verify_voxel, pose.verify_tau, pose.verify_max_points,
-                                   pose.seed)
+            verify = CloudVerifier(src, reference, pose.verify_voxel, pose.verify_tau,
+                                   pose.verify_max_points, pose.seed, footprint_rim=rim)
             bucket = scores[rim][case.setting]
             bucket["right"].append(verify(T).footprint_fitness)
             bucket["wrong"] += [v.footprint_fitness for v in map(verify, wrong)

@@ -53,6 +53,9 @@ def from_dict(cls, data: Mapping | None):
     for key, value in data.items():
         hint = hints[key]
         if dataclasses.is_dataclass(hint):
+            if not isinstance(value, Mapping):
+                raise ValueError(f"{cls.__name__}.{key} is a section ({hint.__name__}), "
+                                 f"got {value!r}")
             value = from_dict(hint, value)
         elif typing.get_origin(hint) is tuple:
             value = tuple(value)
@@ -85,5 +88,9 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
             node = node.setdefault(name, {})
             if not isinstance(node, dict):
                 raise ValueError(f"override {item!r}: {name} is not a section")
-        node[leaf] = yaml.safe_load(raw)
+        try:
+            node[leaf] = yaml.safe_load(raw)
+        except yaml.YAMLError as exc:
+            reason = " ".join(str(exc).split())
+            raise ValueError(f"override {item!r}: the value is not YAML ({reason})") from None
     return data

@@ -1,6 +1,6 @@
 """`sgreg register SRC_DIR REF_DIR [--json OUT] [--coarse] [--no-icp] [--png OUT] [--weights W]
 [--set KEY=VALUE ...]`: register two instance map directories with SG-Reg (sgreg_core.pipeline);
---set overrides a PipelineConfig entry (e.g. pose.footprint_rim=1).
+--set overrides a PipelineConfig entry (e.g. pose.footprint_rim=1; coarse_pose.* with --coarse).
 `sgreg register --pairs FILE [--json OUT]`: many pairs (one "SRC_DIR REF_DIR" per line), the
 model loaded once; --json then writes a list of results, and a pair with bad input is an
 entry with an "error" instead of the end of the run.
@@ -15,6 +15,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sgreg_core.pipeline import PipelineConfig
 
 NAME = "register"
 HELP = "register two instance maps (prints T, writes JSON)"
@@ -37,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="torch threads (small graphs: 1 is fastest)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a PipelineConfig entry, e.g. pose.footprint_rim=1 "
-                             "(repeatable; see docs/VERDICT.md)")
+                             "(coarse_pose.* with --coarse; repeatable; see docs/VERDICT.md)")
 
 
 def _fail(message: str) -> int:
@@ -81,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         return _fail(str(exc))
     try:
-        cfg = _pipeline_config(args)
+        cfg = pipeline_config(args)
     except (TypeError, ValueError) as exc:
         return _fail(f"--set: {exc}")
     torch.set_num_threads(max(1, args.threads))
@@ -121,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     return max(codes)
 
 
-def _pipeline_config(args: argparse.Namespace):
+def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     """PipelineConfig from the flags, then the --set overrides."""
     from sgreg_core.config import apply_overrides, from_dict, to_dict
     from sgreg_core.pipeline import PipelineConfig

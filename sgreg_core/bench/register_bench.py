@@ -31,7 +31,7 @@ from .baselines import BASELINES, BaselineConfig
 from ..geometry import invert_transform
 from ..metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success,
                        rre, rte)
-from ..pose import reference_cloud_for
+from ..pose import ReferenceCloud
 from ..pipeline import (PipelineConfig, Registration, build_graphs, node_cloud, reference_cloud,
                         register_features, register_graphs, to_map_frames)
 from .cases import SETTINGS, Case, CaseConfig
@@ -140,7 +140,7 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
         coarse = replace(cfg.pipeline, mode="coarse")
         t0 = time.perf_counter()
         pose = coarse.pose_config()
-        reference = reference_cloud_for(reference_cloud(ref_graph), pose)
+        reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         prep_ms = 1e3 * (time.perf_counter() - t0)
         cpu0 = time.process_time()
         reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, coarse),

@@ -34,7 +34,7 @@ from ..maps.instance_map import labelled_mask, select_points
 from ..metrics import rre, rte
 from ..net.model import SGRegModel
 from ..pipeline import PipelineConfig, build_graphs, node_cloud, reference_cloud, register_features, to_map_frames
-from ..pose import reference_cloud_for
+from ..pose import ReferenceCloud
 from ..runtime.peers import PeersConfig
 from ..runtime.wire import ENCODINGS, pack_features
 from ..simulation.synth import SynthConfig, generate_scene
@@ -111,7 +111,8 @@ def run_scale(model: SGRegModel, cfg: ScaleConfig, log=print) -> list[dict]:
             f_src, f_ref = model.encode(g_src, dense=True, timings=t), model.encode(g_ref, dense=True, timings=t)
             t2 = time.perf_counter()
             coarse_cfg = replace(pipe, mode="coarse")
-            reference = reference_cloud_for(reference_cloud(g_ref), coarse_cfg.pose_config())
+            reference = ReferenceCloud(reference_cloud(g_ref), coarse_cfg.pose_config().verify_voxel,
+                                       coarse_cfg.pose_config().footprint_cell)
             t3 = time.perf_counter()
             coarse = to_map_frames(register_features(model, f_src, f_ref, node_cloud(g_src), reference,
                                                      coarse_cfg), g_src.level, g_ref.level)

@@ -42,11 +42,11 @@ class PoseConfig:
     verify_voxel:        m, voxel of the clouds used for verification (and ICP).
     verify_tau:          m, support distance of the verification.
     footprint_cell:      m, grid cell of the reference footprint (verify.Footprint).
-    footprint_rim:       cells of the footprint's outer edge the fitness leaves out (where a
-                         partial map has the floor but not yet the wall; verify.Footprint).
-                         0 (all of it) by default: 1 verifies more right poses of partial
-                         rooms, but also more slides on floors of identical rooms
-                         (docs/VERDICT.md section 7).
+    footprint_rim:       cells of the footprint's outer edge the footprint fitness leaves out
+                         (where a partial map has the floor but not the wall; 1 takes the
+                         footprint's one-cell margin away; verify.Footprint.core). 0 (all of
+                         it) by default: 1 verifies more right poses of partial rooms, but
+                         also more slides on floors of identical rooms (docs/VERDICT.md 7).
     verify_max_points:   source points kept for verification (seeded random subsample).
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
@@ -78,8 +78,9 @@ class PoseConfig:
     seed: int = 0
 
     def __post_init__(self):
-        if self.footprint_rim < 0:
-            raise ValueError(f"footprint_rim must be >= 0 cells, got {self.footprint_rim}")
+        rim = self.footprint_rim
+        if isinstance(rim, bool) or not isinstance(rim, int) or rim < 0:
+            raise ValueError(f"footprint_rim must be a whole number of cells >= 0, got {rim!r}")
 
 
 @dataclass
@@ -406,8 +407,3 @@ def _verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | None:
         return None
     return CloudVerifier(sc, rc, cfg.verify_voxel, cfg.verify_tau, cfg.verify_max_points,
                          cfg.seed, cfg.footprint_cell, cfg.footprint_rim)
-
-
-def reference_cloud_for(cloud: np.ndarray, cfg: PoseConfig) -> ReferenceCloud:
-    """The ReferenceCloud of a map's cloud as estimate_pose with cfg verifies against it."""
-    return ReferenceCloud(cloud, cfg.verify_voxel, cfg.footprint_cell, cfg.footprint_rim)

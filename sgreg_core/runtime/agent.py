@@ -15,7 +15,7 @@ from ..config import param
 from ..maps.instance_map import validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
 from ..pipeline import reference_cloud
-from ..pose import PoseConfig, ReferenceCloud, reference_cloud_for
+from ..pose import PoseConfig, ReferenceCloud
 from ..maps.level import LevelConfig, Levelling, level_map
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
@@ -242,8 +242,8 @@ class AgentCore:
     def reference_cloud(self, pose: PoseConfig) -> ReferenceCloud:
         """The own cloud prepared for verification and ICP (voxels, KD-tree, normals,
         footprint), built once per map update: every peer's estimates reuse it."""
-        key = (id(self.graph), self.map_sequence, pose.verify_voxel, pose.footprint_cell,
-               pose.footprint_rim)
+        key = (id(self.graph), self.map_sequence, pose.verify_voxel, pose.footprint_cell)
         if self._reference is None or self._reference[0] != key:
-            self._reference = key, reference_cloud_for(self.own_cloud(), pose)
+            self._reference = key, ReferenceCloud(self.own_cloud(), pose.verify_voxel,
+                                                  pose.footprint_cell)
         return self._reference[1]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sgreg_cli.main import main
-from sgreg_core.pose import (CloudVerifier, PoseConfig, apply_T, estimate_pose,
-                             make_T, reference_cloud_for, yaw_rotation)
+from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
+                             make_T, yaw_rotation)
 
 ROOM = np.array([8.0, 6.0, 3.0])
 
@@ -172,22 +172,32 @@ def test_floor_on_floor_is_no_evidence():
 
 
 def test_a_wall_the_reference_never_saw_does_not_count_against_a_right_pose():
-    """The reference holds the floor up to 15 cm from the x = 0 wall but not the wall (its
-    instance was dropped, the view cut off): at the right pose the source's wall lands on the
-    footprint's rim, unsupported. With footprint_rim the fitness leaves the rim out, so the
-    right pose keeps its support; a pose shifted by a metre still puts furniture where the
-    reference has none."""
+    """The reference holds the floor from x = 0.3 m but not the wall at x = 0.1 (its instance
+    dropped, the view cut off): at the right pose the source's wall lands in the middle of the
+    footprint's one-cell margin (cells of 0.2 m from x = 0), unsupported. With footprint_rim = 1 the margin is left out of
+    the fitness, so the right pose keeps its support; a pose shifted by a metre still puts
+    furniture where the reference has none. The setting reaches the verifier from PoseConfig."""
     rng = np.random.default_rng(24)
-    room = box_room(rng)
-    seen = room[room[:, 0] > 0.15]
+    room = box_room(rng) + [0.1, 0.0, 0.0]
+    seen = room[room[:, 0] > 0.3]
     fitness = {rim: CloudVerifier(room, seen, voxel=0.05, footprint_rim=rim)(np.eye(4))
                .footprint_fitness for rim in (0, 1)}
-    assert fitness[0] < 0.9 < fitness[1]
+    assert fitness[0] < fitness[1] - 0.05 and fitness[1] > 0.97
     shifted = CloudVerifier(room, seen, voxel=0.05, footprint_rim=1)(
         make_T(np.eye(3), [1.0, 0.0, 0.0]))
     assert shifted.footprint_fitness < 0.5
-    with pytest.raises(ValueError, match="rim"):
-        CloudVerifier(room, seen, footprint_rim=-1)
+    # through estimate_pose, a prebuilt reference serves both rims
+    src, ref, _ = correspondences(rng, 300, 0.3, np.eye(4))
+    reference = ReferenceCloud(seen, 0.05, 0.2)
+    for rim in (0, 1):
+        res = estimate_pose(src, ref, src_cloud=room, ref_cloud=reference,
+                            cfg=PoseConfig(footprint_rim=rim))
+        assert res.footprint_fitness == pytest.approx(fitness[rim], abs=0.02)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="rim"):
+            PoseConfig(footprint_rim=bad)
+        with pytest.raises(ValueError, match="rim"):
+            CloudVerifier(room, seen, footprint_rim=bad)
 
 
 def test_prebuilt_reference_cloud_gives_the_same_verdict():
@@ -199,7 +209,7 @@ def test_prebuilt_reference_cloud_gives_the_same_verdict():
     cfg = PoseConfig(icp=True)
     a = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=cfg)
     b = estimate_pose(src, ref, src_cloud=room,
-                      ref_cloud=reference_cloud_for(ref_cloud, cfg),
+                      ref_cloud=ReferenceCloud(ref_cloud, cfg.verify_voxel, cfg.footprint_cell),
                       cfg=cfg)
     assert a.success and b.success
     np.testing.assert_allclose(a.T, b.T, atol=1e-9)

@@ -1,11 +1,13 @@
 """`sgreg register` and `sgreg bench-register` on synthetic instance maps, with the shipped
 weights: the result JSON contract, exit codes on bad input, coarse mode, the picture, a pair of
 different rooms refused, and the benchmark's output schema."""
+import argparse
 import json
 
 import numpy as np
 import pytest
 
+from sgreg_cli.commands.register import pipeline_config
 from sgreg_cli.main import main
 from sgreg_core.maps.instance_map import write_instance_map
 from sgreg_core.metrics import registration_rmse
@@ -80,14 +82,17 @@ def test_different_rooms_are_not_registered(data):
         assert code == 1 and res["success"] is False and res["reason"] != "ok"
 
 
-def test_set_overrides_the_pipeline_config(data, tmp_path, capsys):
-    """--set reaches the verdict (an impossible inlier count refuses the easy pair); a key that
-    does not exist or a value out of range is one line on stderr and exit 2, not a traceback."""
+def test_set_overrides_thepipeline_config(data, capsys):
+    """--set reaches the pipeline (an impossible inlier count refuses the easy pair; the rim
+    lands in the pose config); a key that does not exist, a value out of range or not YAML, a
+    section given a value: one line on stderr and exit 2, not a traceback."""
     root, _ = data
-    code, res = _register(root, "src", "ref", "--set", "pose.verdict.min_inliers=100000",
-                          "--set", "pose.footprint_rim=1")
+    code, res = _register(root, "src", "ref", "--set", "pose.verdict.min_inliers=100000")
     assert code == 1 and res["reason"] == "too_few_inliers"
-    for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.verdict.min_inliers"):
+    args = argparse.Namespace(coarse=False, no_icp=False, overrides=["pose.footprint_rim=1"])
+    assert pipeline_config(args).pose_config().footprint_rim == 1
+    for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.footprint_rim=1.5",
+                "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad
