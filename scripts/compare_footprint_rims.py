@@ -49,6 +49,7 @@ def main() -> None:
 
     cases = build_cases(CaseConfig(n=args.n, seed=args.seed, rooms=tuple(args.rooms)), SETTINGS)
     pipe = PipelineConfig()    # dense
+    pose = pipe.pose_config()
     min_share = pipe.pose.verdict.min_footprint_share
     scores = {rim: {s: {"right": [], "wrong": []} for s in SETTINGS} for rim in args.rims}
     for k, case in enumerate(cases):
@@ -56,7 +57,6 @@ def main() -> None:
         T = ref_graph.level.T @ case.T_gt @ np.linalg.inv(src_graph.level.T)  # levelled frames
         src = node_cloud(src_graph)
         wrong = wrong_poses(T, src.mean(0))
-        pose = pipe.pose_config()
         reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         for rim in args.rims:
             verify = CloudVerifier(src, reference, pose.verify_voxel, pose.verify_tau,

@@ -19,7 +19,7 @@ from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
 from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
 from .verdict import Evidence, VerdictConfig, confidence, judge, support
-from .verify import CloudVerifier, ReferenceCloud, Verification
+from .verify import CloudVerifier, ReferenceCloud, Verification, check_rim
 
 
 @dataclass
@@ -78,9 +78,7 @@ class PoseConfig:
     seed: int = 0
 
     def __post_init__(self):
-        rim = self.footprint_rim
-        if isinstance(rim, bool) or not isinstance(rim, int) or rim < 0:
-            raise ValueError(f"footprint_rim must be a whole number of cells >= 0, got {rim!r}")
+        check_rim(self.footprint_rim)
 
 
 @dataclass

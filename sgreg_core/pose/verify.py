@@ -71,6 +71,13 @@ def estimate_normals(pts: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
     return vecs[:, :, 0]
 
 
+def check_rim(rim) -> int:
+    """A footprint rim (cells) as an int; ValueError unless a whole number >= 0."""
+    if isinstance(rim, bool) or not isinstance(rim, (int, np.integer)) or rim < 0:
+        raise ValueError(f"footprint rim must be a whole number of cells >= 0, got {rim!r}")
+    return int(rim)
+
+
 class Footprint:
     """The floor plan a cloud covers: occupied cells of a horizontal grid, gaps between
     nearby cells closed, enclosed holes (the free middle of a room) filled, one cell of
@@ -98,10 +105,9 @@ class Footprint:
         edge, unsupported. But on floors of identical rooms the edge is also where a slide by
         one room shows, so the verdict counts the whole footprint by default (PoseConfig
         .footprint_rim, docs/VERDICT.md section 7)."""
-        if isinstance(rim, bool) or not isinstance(rim, (int, np.integer)) or rim < 0:
-            raise ValueError(f"footprint rim must be a whole number of cells >= 0, got {rim!r}")
+        rim = check_rim(rim)
         if rim not in self._cores:
-            self._cores[rim] = ndimage.binary_erosion(self.grid, iterations=int(rim))
+            self._cores[rim] = ndimage.binary_erosion(self.grid, iterations=rim)
         return self._cores[rim]
 
     def contains(self, pts: np.ndarray, rim: int = 0) -> np.ndarray:
@@ -157,9 +163,7 @@ class CloudVerifier:
             normals = estimate_normals(self.src, cKDTree(self.src))
             self.scored = self.src[np.abs(normals[:, 2]) <= HORIZONTAL_NZ]
         self.valid = self.scored.shape[0] >= 3 and self.reference.valid
-        self.rim = footprint_rim
-        if self.reference.valid:
-            self.reference.footprint.core(footprint_rim)   # a bad rim fails here, not per call
+        self.rim = check_rim(footprint_rim)
 
     def __call__(self, T: np.ndarray) -> Verification:
         if not self.valid:

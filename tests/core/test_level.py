@@ -40,7 +40,8 @@ def test_level_map_levels_and_says_so(scene):
 def test_what_cannot_be_levelled_is_left_as_it_is(scene):
     few = estimate_level(scene.points[:50])
     assert not few.ok and "too few points" in few.reason and np.allclose(few.R, np.eye(3))
-    steep = estimate_level(scene.transformed(tilt_rotation(30.0, 0.0)).points, LevelConfig(max_tilt_deg=20.0))
+    steep = estimate_level(scene.transformed(tilt_rotation(30.0, 0.0)).points,
+                           LevelConfig(max_tilt_deg=20.0))
     assert not steep.ok and np.allclose(steep.R, np.eye(3)) and "max_tilt_deg" in steep.reason
     # a map of one tilted plane only (no walls, no floor) gives no gravity it cannot support
     rng = np.random.default_rng(0)

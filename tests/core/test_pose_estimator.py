@@ -174,8 +174,8 @@ def test_floor_on_floor_is_no_evidence():
 def test_a_wall_the_reference_never_saw_does_not_count_against_a_right_pose():
     """The reference holds the floor from x = 0.3 m but not the wall at x = 0.1 (its instance
     dropped, the view cut off): at the right pose the source's wall lands in the middle of the
-    footprint's one-cell margin (cells of 0.2 m from x = 0), unsupported. With footprint_rim = 1 the margin is left out of
-    the fitness, so the right pose keeps its support; a pose shifted by a metre still puts
+    footprint's one-cell margin (cells of 0.2 m from x = 0), unsupported. With footprint_rim = 1
+    the margin is left out of the fitness, so the right pose keeps its support; a pose shifted by a metre still puts
     furniture where the reference has none. The setting reaches the verifier from PoseConfig."""
     rng = np.random.default_rng(24)
     room = box_room(rng) + [0.1, 0.0, 0.0]

@@ -82,7 +82,7 @@ def test_different_rooms_are_not_registered(data):
         assert code == 1 and res["success"] is False and res["reason"] != "ok"
 
 
-def test_set_overrides_thepipeline_config(data, capsys):
+def test_set_overrides_the_pipeline_config(data, capsys):
     """--set reaches the pipeline (an impossible inlier count refuses the easy pair; the rim
     lands in the pose config); a key that does not exist, a value out of range or not YAML, a
     section given a value: one line on stderr and exit 2, not a traceback."""

@@ -51,5 +51,6 @@ def test_a_growing_map_keeps_its_levelling(model):
     keep = np.random.default_rng(0).random(len(scene.points)) < 0.9
     a.take_map(InstanceMap(scene.points[keep], scene.instance[keep], scene.labels), 2, 1.0)
     assert a.level is first
-    a.take_map(scene.transformed(tilt_rotation(2.5, 0.0)), 3, 2.0)       # the map leans 2.5 deg more: re-levelled
+    # the map leans 2.5 deg more: re-levelled
+    a.take_map(scene.transformed(tilt_rotation(2.5, 0.0)), 3, 2.0)
     assert a.level is not first and abs(a.level.tilt_deg - first.tilt_deg) > 1.0
