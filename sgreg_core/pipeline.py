@@ -46,7 +46,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .net.model import NodeFeatures, SGRegModel
-from .pose import PoseConfig, ReferenceCloud, estimate_pose
+from .pose import CloudVerifier, PoseConfig, ReferenceCloud, estimate_pose
+from .pose.guided import GuidedConfig, center_poses, guided_matches
 from .pose.verdict import Evidence, VerdictConfig
 from .maps.level import LevelConfig, Levelling, level_map
 from .maps.scene_graph import GraphConfig, build_scene_graph
@@ -91,7 +92,9 @@ class PipelineConfig:
                     only) or "always" (default: even centimetre-accurate point matches leave
                     a degree of rotation that costs a low-overlap pair its support); overrides
                     the pose configs' own `icp`.
-    min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes")."""
+    min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes").
+    guided:         guided point matching when a dense estimate with clouds fails
+                    (pose/guided.py)."""
 
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
@@ -100,6 +103,7 @@ class PipelineConfig:
     mode: str = "dense"
     icp: str = "always"
     min_nodes: int = 3
+    guided: GuidedConfig = field(default_factory=GuidedConfig)
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -179,6 +183,7 @@ class Registration:
     footprint_fitness: the same share among the SRC points that land on REF's footprint, the
                      measure of the verdict (pose/verify.py; NaN without clouds).
     refined:         True when T is the ICP refinement.
+    guided:          True when the estimate needed guided point matches (pose/guided.py).
     timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
     pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp)."""
 
@@ -202,6 +207,7 @@ class Registration:
     fitness: float = float("nan")
     footprint_fitness: float = float("nan")
     refined: bool = False
+    guided: bool = False
     timing_ms: dict[str, float] = field(default_factory=dict)
     pose_timing_ms: dict[str, float] = field(default_factory=dict)
 
@@ -239,6 +245,7 @@ class Registration:
             "fitness": _finite_or_none(self.fitness),
             "footprint_fitness": _finite_or_none(self.footprint_fitness),
             "refined": bool(self.refined),
+            "guided": bool(self.guided),
             "evidence": {k: _finite_or_none(v) if isinstance(v, float) else v
                          for k, v in vars(self.evidence).items()},
             "T_competitor": None if self.T_competitor is None else
@@ -324,9 +331,28 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         return _finish(out, timings, t_start, own_total)
 
     t0 = time.perf_counter()
+    pose_cfg = cfg.pose_config()
+    if cfg.guided.enabled and cfg.mode == "dense" and ref_cloud is not None \
+            and not isinstance(ref_cloud, ReferenceCloud):
+        # one reference for both passes: building it is most of the pose time
+        ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     groups = corr.groups()
     res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
-                        cfg.pose_config(), groups=groups)
+                        pose_cfg, groups=groups)
+    if (cfg.guided.enabled and res.reason in cfg.guided.after and cfg.mode == "dense"
+            and src_cloud is not None and ref_cloud is not None):
+        guided = _guided_correspondences(src_feats, ref_feats, nodes, src_ids, ref_ids,
+                                         src_cloud, ref_cloud, pose_cfg, cfg.guided)
+        if len(guided):
+            both = Correspondences.concat(corr, guided)
+            both_groups = both.groups()
+            verdict = replace(pose_cfg.verdict,
+                              min_objects=max(pose_cfg.verdict.min_objects, cfg.guided.min_objects))
+            res2 = estimate_pose(both.src_xyz, both.ref_xyz, both.score, src_cloud, ref_cloud,
+                                 replace(pose_cfg, verdict=verdict), groups=both_groups)
+            if res2.success:
+                res, corr, groups, out.corr = res2, both, both_groups, both
+                out.guided = True
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.T_levelled = res.T
@@ -337,6 +363,25 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     out.fitness, out.footprint_fitness = float(res.fitness), float(res.footprint_fitness)
     out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
     return _finish(out, timings, t_start, own_total)
+
+
+def _guided_correspondences(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, src_ids,
+                            ref_ids, src_cloud, ref_cloud: ReferenceCloud, pose_cfg: PoseConfig,
+                            gcfg: GuidedConfig) -> Correspondences:
+    """Point pairs of the node matches at the best poses from node centers (pose/guided.py)."""
+    verifier = CloudVerifier(src_cloud, ref_cloud, pose_cfg.verify_voxel, pose_cfg.verify_tau,
+                             gcfg.verify_max_points, pose_cfg.seed, pose_cfg.footprint_cell,
+                             pose_cfg.footprint_rim)
+    poses = center_poses(nodes.src_xyz, nodes.ref_xyz, nodes.score, verifier, pose_cfg, gcfg)
+    sp, sv = np.asarray(src_feats.points)[nodes.src_idx], np.asarray(src_feats.valid)[nodes.src_idx]
+    rp, rv = np.asarray(ref_feats.points)[nodes.ref_idx], np.asarray(ref_feats.valid)[nodes.ref_idx]
+    pairs = np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64)
+    out = Correspondences(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64))
+    for T, _ in poses:
+        k, s, r, d = guided_matches(T, sp, sv, rp, rv, gcfg.radius)
+        score = np.asarray(nodes.score, np.float64)[k] * (1.0 - d / gcfg.radius)
+        out = Correspondences.concat(out, Correspondences(s, r, score, pairs[k]))
+    return out
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

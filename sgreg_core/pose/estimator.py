@@ -248,7 +248,21 @@ def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult
     return candidates
 
 
-def _far(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig) -> bool:
+def pose_hypotheses(src: np.ndarray, ref: np.ndarray, weights: np.ndarray, bounds: np.ndarray,
+                    cfg: PoseConfig) -> list[np.ndarray]:
+    """Candidate poses of correspondences (src[i] -> ref[i]), before any verification: GNC
+    over all and, when its inlier ratio is below cfg.gnc_inlier_gate, one fit per clique of
+    the compatibility pyramid."""
+    gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
+    return _hypotheses(src, ref, weights, bounds, cfg, gcfg, PoseResult(), _Clock())
+
+
+def refine_icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
+    """Point-to-plane ICP of the verifier's clouds from T (cfg.icp_distance, icp_max_iters)."""
+    return _icp(verifier, T, cfg)
+
+
+def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig) -> bool:
     """T differs from T_ref by at least the competitor distance (translation or rotation)."""
     d = np.linalg.inv(T_ref) @ T
     angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0)))
@@ -259,7 +273,7 @@ def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcf
     """Hypotheses far from the winner, best supported first (inlier objects, then inliers):
     the other candidates and what GNC (or, when its inlier ratio is low, GNC over one maximum
     clique) finds in the correspondences the winner leaves unexplained."""
-    pool = [T for T in candidates if _far(T, T_win, cfg.verdict)]
+    pool = [T for T in candidates if far_apart(T, T_win, cfg.verdict)]
     rest = np.flatnonzero(~inl_win)
     if rest.size >= 3:
         gnc = gnc_tls(s[rest], r[rest], b[rest], w[rest], gcfg)
@@ -275,7 +289,7 @@ def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcf
                         pool.append(_refine(s, r, w, b, cand.T, cfg.dof))
     scored = []
     for T in pool:
-        if _far(T, T_win, cfg.verdict):
+        if far_apart(T, T_win, cfg.verdict):
             inl = residuals(T, s, r) <= b
             scored.append((int(np.unique(g[inl]).size), int(inl.sum()), T))
     scored.sort(key=lambda x: x[:2], reverse=True)
@@ -290,7 +304,7 @@ def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
         fitness = float("nan")
         if verifier is not None and verifier.valid:
             T = _icp(verifier, T, cfg) if cfg.icp else T
-            if not _far(T, T_win, cfg.verdict):
+            if not far_apart(T, T_win, cfg.verdict):
                 continue
             fitness = verifier(T).footprint_fitness
         inl = residuals(T, s, r) <= b

@@ -19,7 +19,7 @@ from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 RESULT_KEYS = {"T": list, "success": bool, "node_matches": int, "inliers": int,
                "timing_ms": dict, "reason": str, "weights_id": str, "mode": str,
-               "correspondences": int}
+               "correspondences": int, "guided": bool, "refined": bool}
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +91,10 @@ def test_set_overrides_the_pipeline_config(data, capsys):
     assert code == 1 and res["reason"] == "too_few_inliers"
     args = argparse.Namespace(coarse=False, no_icp=False, overrides=["pose.footprint_rim=1"])
     assert pipeline_config(args).pose_config().footprint_rim == 1
+    args.overrides = ["guided.enabled=false", "guided.min_objects=5"]
+    assert not pipeline_config(args).guided.enabled and pipeline_config(args).guided.min_objects == 5
     for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.footprint_rim=1.5",
-                "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers"):
+                "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers", "guided.after=[ok]"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad

@@ -1,0 +1,147 @@
+"""Guided point matching (sgreg_core/pose/guided.py) and its place in the pipeline: when the
+learned point matches are wrong but the node matches and their centers are right, the dense
+estimate is recovered, and nothing is verified when the clouds disagree."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
+from sgreg_core.pipeline import PipelineConfig, register_features
+from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T, yaw_rotation
+from sgreg_core.pose.guided import GuidedConfig, center_poses, guided_matches
+
+from test_pose_estimator import box_room, pose_error
+
+K = 48   # sampled points per node
+
+
+def room_objects(rng, n=8):
+    """A box room with n objects; returns (all points, (n, K, 3) object samples, centers)."""
+    ext = rng.uniform([0.4, 0.4, 0.5], [1.2, 1.0, 1.1], (n, 3))
+    ctr = np.c_[rng.uniform(1.0, [7.0, 5.0], (n, 2)), ext[:, 2] / 2]
+    faces = rng.uniform(-0.5, 0.5, (n, 400, 3))
+    ax = rng.integers(0, 3, (n, 400))
+    np.put_along_axis(faces, ax[..., None], np.sign(np.take_along_axis(faces, ax[..., None], -1)) * 0.5, -1)
+    objects = ctr[:, None] + faces * ext[:, None]
+    room = np.concatenate([box_room(rng, n_objects=0), objects.reshape(-1, 3)])
+    return room, objects, ctr
+
+
+def sample(rng, objects):
+    """K points of each object, a fresh draw (two views share no point sample)."""
+    pick = np.stack([rng.choice(objects.shape[1], K, replace=False) for _ in objects])
+    return np.take_along_axis(objects, pick[..., None], 1)
+
+
+def test_guided_matches_pair_points_of_the_same_object_at_the_right_pose_only():
+    rng = np.random.default_rng(0)
+    _, objects, _ = room_objects(rng, 4)
+    T = make_T(yaw_rotation(0.7), np.array([2.0, -1.0, 0.1]))
+    src = sample(rng, objects)
+    ref = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(4, K, 3)
+    sv, rv = np.ones((4, K), bool), np.ones((4, K), bool)
+    rv[:, K // 2:] = False   # padding is never paired
+    k, s, r, d = guided_matches(T, src, sv, ref, rv, 0.1)
+    assert len(k) > K and set(k.tolist()) == {0, 1, 2, 3}
+    assert (d <= 0.1).all() and np.allclose(np.linalg.norm(apply_T(T, s) - r, axis=1), d)
+    assert np.isin(r.round(6), ref[:, : K // 2].reshape(-1, 3).round(6)).all(1).all()
+    shifted = make_T(T[:3, :3], T[:3, 3] + np.array([1.5, 0, 0]))
+    assert len(guided_matches(shifted, src, sv, ref, rv, 0.1)[0]) == 0
+    sv[:] = False
+    assert len(guided_matches(T, src, sv, ref, rv, 0.1)[0]) == 0
+
+
+def test_center_poses_bring_decimetre_centers_onto_the_clouds():
+    rng = np.random.default_rng(1)
+    room, _, ctr = room_objects(rng)
+    T = make_T(yaw_rotation(-2.0), np.array([-3.0, 4.0, 0.0]))
+    src_c = ctr + rng.normal(0, 0.15, ctr.shape)            # centers of partly seen objects
+    ref_c = apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape))
+    ref_c[5:] = apply_T(T, ctr[rng.permutation(3)])           # three wrong node matches
+    pose = PoseConfig(verify_voxel=0.1)
+    verifier = CloudVerifier(room, apply_T(T, room), 0.1, 0.1, 1500, 0, 0.2, 0)
+    poses = center_poses(src_c, ref_c, np.ones(len(ctr)), verifier, pose, GuidedConfig())
+    assert 1 <= len(poses) <= 2
+    dt, dr = pose_error(poses[0][0], T)
+    assert dt < 0.05 and dr < 1.0
+    assert poses[0][1] == max(s for _, s in poses)
+    assert center_poses(src_c[:2], ref_c[:2], np.ones(2), verifier, pose, GuidedConfig()) == []
+
+
+class ScriptedMatcher:
+    """Stands in for the network's matching only: right node matches (their centers), and
+    point matches that are all wrong, as under a front end's merged and cut instances."""
+
+    def __init__(self, rng, n):
+        self.rng, self.n = rng, n
+
+    def match_dense(self, src, ref, timings=None):
+        idx = np.arange(self.n)
+        nodes = NodeMatches(idx, idx, np.full(self.n, 0.9, np.float32), src.centers, ref.centers)
+        pair = np.repeat(idx, 10)
+        p_src, p_ref = self.rng.integers(0, K, (2, pair.size))
+        other = (pair + 1 + self.rng.integers(0, self.n - 1, pair.size)) % self.n   # wrong object
+        points = PointMatches(src.points[pair, p_src], ref.points[other, p_ref],
+                              np.full(pair.size, 0.5, np.float32), pair)
+        return DenseMatches(nodes, points)
+
+
+def features(points, centers):
+    n = len(centers)
+    return NodeFeatures(node_ids=np.arange(n, dtype=np.int64) + 10, centers=centers.astype(np.float32),
+                        descriptor=np.zeros((n, 4), np.float32), points=points.astype(np.float32),
+                        valid=np.ones((n, K), bool), z=np.zeros((n, K, 2), np.float32))
+
+
+def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching():
+    rng = np.random.default_rng(2)
+    room, objects, ctr = room_objects(rng)
+    T = make_T(yaw_rotation(2.5), np.array([5.0, 1.0, 0.0]))
+    src = features(sample(rng, objects), ctr + rng.normal(0, 0.15, ctr.shape))
+    ref_pts = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(objects.shape[0], K, 3)
+    ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
+    ref_room = apply_T(T, room)
+    off = replace(PipelineConfig(), guided=GuidedConfig(enabled=False))
+    plain = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
+                              ref_room, off)
+    assert not plain.success and not plain.guided
+    on = PipelineConfig()    # guided matching is on by default
+    reg = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
+                            ref_room, on)
+    assert reg.success and reg.guided and reg.mode == "dense"
+    dt, dr = pose_error(reg.T, T)
+    assert dt < 0.05 and dr < 1.0
+    assert reg.inlier_nodes >= 3 and reg.to_json()["guided"] is True
+    # the same matches against a room whose surfaces are elsewhere: nothing is verified
+    other = apply_T(T, box_room(np.random.default_rng(9), size=np.array([5.0, 4.0, 2.5])))
+    bad = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
+                            other, on)
+    assert not bad.success
+
+
+def test_guided_matching_answers_only_the_reasons_it_is_given_and_needs_its_objects():
+    rng = np.random.default_rng(4)
+    room, objects, ctr = room_objects(rng)
+    T = make_T(yaw_rotation(-1.0), np.array([1.0, 3.0, 0.0]))
+    src = features(sample(rng, objects), ctr + rng.normal(0, 0.15, ctr.shape))
+    ref_pts = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(objects.shape[0], K, 3)
+    ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
+
+    def run(**guided):
+        cfg = replace(PipelineConfig(), guided=GuidedConfig(enabled=True, **guided))
+        return register_features(ScriptedMatcher(np.random.default_rng(5), len(ctr)), src, ref,
+                                 room, apply_T(T, room), cfg)
+
+    first = run(after=())     # guided matching may answer nothing: the first verdict stands
+    assert not first.success and not first.guided
+    assert run().success
+    assert not run(after=tuple(r for r in GuidedConfig().after if r != first.reason)).guided
+    too_many = run(min_objects=len(ctr) + 1)
+    assert not too_many.success and not too_many.guided
+
+
+@pytest.mark.parametrize("after", [("ok",), ("no_such_reason",)])
+def test_guided_config_rejects_reasons_that_are_not_refusals(after):
+    with pytest.raises(ValueError, match="guided.after"):
+        GuidedConfig(after=after)
