@@ -46,7 +46,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .net.model import NodeFeatures, SGRegModel
-from .pose import CloudVerifier, PoseConfig, ReferenceCloud, estimate_pose
+from .pose import CloudVerifier, PoseConfig, ReferenceCloud, estimate_pose, nms_correspondences
 from .pose.guided import GuidedConfig, center_poses, guided_matches
 from .pose.verdict import Evidence, VerdictConfig
 from .maps.level import LevelConfig, Levelling, level_map
@@ -172,8 +172,9 @@ class Registration:
     evidence:        what the verdict was taken on (pose.verdict.Evidence).
     mode:            "dense", "coarse" or "merged".
     node_pairs:      (m, 2) int64 matched (src node id, ref node id); node_scores (m,).
-    corr:            the Correspondences handed to the estimator (points in dense mode, node
-                     centers in coarse mode, plus the kept ones in merged mode).
+    corr:            the Correspondences of the estimate reported (points in dense mode, node
+                     centers in coarse mode, plus the kept ones in merged mode; the learned
+                     points, thinned, then the guided ones when `guided`).
     inlier_mask:     (c,) bool, inliers of the estimator's pose (before any ICP).
     inliers, inlier_ratio: their count and share.
     inlier_nodes:    node matches with at least one inlier correspondence.
@@ -184,8 +185,11 @@ class Registration:
                      measure of the verdict (pose/verify.py; NaN without clouds).
     refined:         True when T is the ICP refinement.
     guided:          True when the estimate needed guided point matches (pose/guided.py).
+    guided_pairs:    the last guided_pairs of corr are those guided matches: made at the pose,
+                     they are no evidence for a later estimate and are not kept (inlier_corr).
     timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
-    pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp)."""
+    pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp) of
+                     the first estimate, and "guided": the whole guided pass when it ran."""
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
     T_levelled: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -208,6 +212,7 @@ class Registration:
     footprint_fitness: float = float("nan")
     refined: bool = False
     guided: bool = False
+    guided_pairs: int = 0
     timing_ms: dict[str, float] = field(default_factory=dict)
     pose_timing_ms: dict[str, float] = field(default_factory=dict)
 
@@ -225,8 +230,12 @@ class Registration:
         return np.unique(pairs, axis=0) if len(pairs) else np.zeros((0, 2), np.int64)
 
     def inlier_corr(self) -> Correspondences:
-        """The correspondences the estimate explains (what a runtime keeps for merging)."""
-        return self.corr.subset(self.inlier_mask)
+        """The correspondences the estimate explains, guided ones left out (what a runtime
+        keeps for merging)."""
+        mask = self.inlier_mask.copy()
+        if self.guided_pairs:
+            mask[len(mask) - self.guided_pairs:] = False
+        return self.corr.subset(mask)
 
     def to_json(self) -> dict:
         """The result JSON of docs/ARCHITECTURE.md ("Contracts") (+ reason, mode, counts, node pairs)."""
@@ -326,33 +335,29 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     out.node_scores = np.asarray(nodes.score, np.float32)
     out.corr = corr
     out.inlier_mask = np.zeros(len(corr), bool)
-    if len(corr) == 0:
+    if len(corr) == 0 and len(out.node_pairs) == 0:
         out.reason = "no_node_matches"
         return _finish(out, timings, t_start, own_total)
 
     t0 = time.perf_counter()
     pose_cfg = cfg.pose_config()
-    if cfg.guided.enabled and cfg.mode == "dense" and ref_cloud is not None \
-            and not isinstance(ref_cloud, ReferenceCloud):
+    guided_on = (cfg.guided.enabled and cfg.mode == "dense" and src_cloud is not None
+                 and ref_cloud is not None)
+    if guided_on and not isinstance(ref_cloud, ReferenceCloud) and _is_cloud(ref_cloud):
         # one reference for both passes: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     groups = corr.groups()
     res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
                         pose_cfg, groups=groups)
-    if (cfg.guided.enabled and res.reason in cfg.guided.after and cfg.mode == "dense"
-            and src_cloud is not None and ref_cloud is not None):
-        guided = _guided_correspondences(src_feats, ref_feats, nodes, src_ids, ref_ids,
-                                         src_cloud, ref_cloud, pose_cfg, cfg.guided)
-        if len(guided):
-            both = Correspondences.concat(corr, guided)
-            both_groups = both.groups()
-            verdict = replace(pose_cfg.verdict,
-                              min_objects=max(pose_cfg.verdict.min_objects, cfg.guided.min_objects))
-            res2 = estimate_pose(both.src_xyz, both.ref_xyz, both.score, src_cloud, ref_cloud,
-                                 replace(pose_cfg, verdict=verdict), groups=both_groups)
-            if res2.success:
-                res, corr, groups, out.corr = res2, both, both_groups, both
-                out.guided = True
+    pose_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
+    if guided_on and res.reason in cfg.guided.after and isinstance(ref_cloud, ReferenceCloud):
+        t_guided = time.perf_counter()
+        second = _guided_estimate(src_feats, ref_feats, nodes, src_ids, ref_ids, corr, src_cloud,
+                                  ref_cloud, pose_cfg, cfg.guided)
+        pose_ms["guided"] = 1e3 * (time.perf_counter() - t_guided)
+        if second is not None and second[0].success:
+            res, corr, out.guided_pairs = second
+            groups, out.corr, out.guided = corr.groups(), corr, True
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.T_levelled = res.T
@@ -361,14 +366,26 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     out.inliers, out.inlier_ratio = int(res.inliers), float(res.inlier_ratio)
     out.inlier_nodes = int(np.unique(groups[res.inlier_mask]).size)
     out.fitness, out.footprint_fitness = float(res.fitness), float(res.footprint_fitness)
-    out.pose_timing_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
+    out.pose_timing_ms = pose_ms
     return _finish(out, timings, t_start, own_total)
 
 
-def _guided_correspondences(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, src_ids,
-                            ref_ids, src_cloud, ref_cloud: ReferenceCloud, pose_cfg: PoseConfig,
-                            gcfg: GuidedConfig) -> Correspondences:
-    """Point pairs of the node matches at the best poses from node centers (pose/guided.py)."""
+def _is_cloud(a) -> bool:
+    try:
+        a = np.asarray(a, np.float64)
+    except (TypeError, ValueError):
+        return False
+    return a.ndim == 2 and a.shape[1] == 3
+
+
+def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, src_ids, ref_ids,
+                     corr: Correspondences, src_cloud, ref_cloud: ReferenceCloud,
+                     pose_cfg: PoseConfig, gcfg: GuidedConfig):
+    """The estimate on the learned correspondences plus the node matches' points paired at the
+    best poses from node centers (pose/guided.py), asking for gcfg.min_objects. Returns
+    (PoseResult, correspondences: learned then guided, number of guided ones), or None when no
+    pair was made. Each set is thinned by the NMS on its own: a point paired at both guided
+    poses and by the network is evidence for each of them."""
     verifier = CloudVerifier(src_cloud, ref_cloud, pose_cfg.verify_voxel, pose_cfg.verify_tau,
                              gcfg.verify_max_points, pose_cfg.seed, pose_cfg.footprint_cell,
                              pose_cfg.footprint_rim)
@@ -376,12 +393,24 @@ def _guided_correspondences(src_feats: NodeFeatures, ref_feats: NodeFeatures, no
     sp, sv = np.asarray(src_feats.points)[nodes.src_idx], np.asarray(src_feats.valid)[nodes.src_idx]
     rp, rv = np.asarray(ref_feats.points)[nodes.ref_idx], np.asarray(ref_feats.valid)[nodes.ref_idx]
     pairs = np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64)
-    out = Correspondences(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2), np.int64))
+    sets = []
     for T, _ in poses:
         k, s, r, d = guided_matches(T, sp, sv, rp, rv, gcfg.radius)
         score = np.asarray(nodes.score, np.float64)[k] * (1.0 - d / gcfg.radius)
-        out = Correspondences.concat(out, Correspondences(s, r, score, pairs[k]))
-    return out
+        sets.append(Correspondences(s, r, score, pairs[k]))
+    guided = [c.subset(nms_correspondences(c.src_xyz, c.ref_xyz, c.score, pose_cfg.nms_radius))
+              for c in sets if len(c)]
+    if not guided:
+        return None
+    learned = corr.subset(nms_correspondences(corr.src_xyz, corr.ref_xyz, corr.score,
+                                              pose_cfg.nms_radius))
+    both = learned
+    for c in guided:
+        both = Correspondences.concat(both, c)
+    verdict = replace(pose_cfg.verdict, min_objects=max(pose_cfg.verdict.min_objects, gcfg.min_objects))
+    res = estimate_pose(both.src_xyz, both.ref_xyz, both.score, src_cloud, ref_cloud,
+                        replace(pose_cfg, nms_radius=0.0, verdict=verdict), groups=both.groups())
+    return res, both, len(both) - len(learned)
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

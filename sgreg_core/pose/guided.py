@@ -29,6 +29,8 @@ from .verdict import REASONS, VerdictConfig
 from .verify import CloudVerifier
 
 _SAME = VerdictConfig(competitor_m=0.05, competitor_deg=1.0)   # closer hypotheses are one
+# what a dense estimate can be refused for (the estimator's own reason before the verdict's)
+REFUSALS = ("too_few_correspondences",) + REASONS[1:]
 
 
 @dataclass
@@ -39,7 +41,8 @@ class GuidedConfig:
                        objects are decimetres off).
     clique_deltas:     m, compatibility bounds of the center clique pyramid (always run).
     icp_distances:     m, correspondence distances of the coarse-to-fine ICP of each center
-                       hypothesis (a pose from centers is up to half a metre off).
+                       hypothesis (a pose from centers is up to half a metre off; this ICP runs
+                       whatever PipelineConfig.icp says: without it a center pose pairs nothing).
     poses:             guided matches are made at this many far-apart center poses, the best
                        verified first (two let a near-tie show as a competitor).
     verify_max_points: source points of the clouds the center hypotheses are refined and
@@ -66,13 +69,22 @@ class GuidedConfig:
     verify_max_points: int = 600
     icp_max_iters: int = 10
     radius: float = 0.1
-    after: tuple[str, ...] = ("too_few_inliers", "too_few_objects", "degenerate_geometry")
+    after: tuple[str, ...] = ("too_few_correspondences", "too_few_inliers", "too_few_objects",
+                              "degenerate_geometry")
     min_objects: int = 4
 
     def __post_init__(self):
-        bad = [r for r in self.after if r not in REASONS or r == "ok"]
+        bad = [r for r in self.after if r not in REFUSALS]
         if bad:
-            raise ValueError(f"guided.after: {bad} are not refusal reasons {list(REASONS[1:])}")
+            raise ValueError(f"guided.after: {bad} are not refusal reasons {list(REFUSALS)}")
+        if not (self.center_bound > 0 and self.radius > 0 and self.poses >= 1
+                and self.verify_max_points >= 3 and self.icp_max_iters >= 1
+                and len(self.icp_distances) and min(self.icp_distances) > 0
+                and len(self.clique_deltas) and min(self.clique_deltas) > 0
+                and self.min_objects >= 1):
+            raise ValueError("guided: center_bound, radius, icp_distances and clique_deltas must be "
+                             "> 0 (and given), poses, icp_max_iters and min_objects >= 1, "
+                             "verify_max_points >= 3")
 
 
 def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.ndarray,
@@ -81,15 +93,18 @@ def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.nd
     """Poses from node-center matches, each refined by coarse-to-fine ICP on the verifier's
     clouds, best verification score first, at most cfg.poses and pairwise far apart
     (pose_cfg.verdict's competitor distance)."""
-    src = np.asarray(src_centers, np.float64)
-    ref = np.asarray(ref_centers, np.float64)
+    src = np.asarray(src_centers, np.float64).reshape(-1, 3)
+    ref = np.asarray(ref_centers, np.float64).reshape(-1, 3)
+    w = np.asarray(scores, np.float64).reshape(-1)
+    finite = np.isfinite(src).all(1) & np.isfinite(ref).all(1) & np.isfinite(w) & (w >= 0)
+    src, ref, w = src[finite], ref[finite], w[finite]
     if src.shape[0] < 3 or not verifier.valid:
         return []
-    hyp_cfg = replace(pose_cfg, noise_bound=cfg.center_bound, clique_deltas=cfg.clique_deltas,
-                      gnc_inlier_gate=1.0, nms_radius=0.0)
+    # the pyramid always runs: GNC over few centers, most of them wrong, finds one pose at most
+    hyp_cfg = replace(pose_cfg, clique_deltas=cfg.clique_deltas, gnc_inlier_gate=np.inf)
     bounds = np.full(src.shape[0], cfg.center_bound)
     scored, seen = [], []
-    for T in pose_hypotheses(src, ref, np.asarray(scores, np.float64), bounds, hyp_cfg):
+    for T in pose_hypotheses(src, ref, w, bounds, hyp_cfg):
         if any(not far_apart(T, S, _SAME) for S in seen):   # cliques often repeat a pose
             continue
         seen.append(T)
@@ -117,11 +132,13 @@ def guided_matches(T: np.ndarray, src_points: np.ndarray, src_valid: np.ndarray,
     rp = np.asarray(ref_points, np.float64)
     if sp.shape[0] == 0:
         return (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    src_ok = np.asarray(src_valid, bool) & np.isfinite(sp).all(-1)
+    ref_ok = np.asarray(ref_valid, bool) & np.isfinite(rp).all(-1)
     moved = apply_T(T, sp.reshape(-1, 3)).reshape(sp.shape)
     d = np.linalg.norm(moved[:, :, None, :] - rp[:, None, :, :], axis=-1)     # (m, K, K)
-    d = np.where(np.asarray(ref_valid, bool)[:, None, :], d, np.inf)
+    d = np.where(ref_ok[:, None, :], d, np.inf)
     nearest = d.argmin(-1)                                                   # (m, K)
     dist = np.take_along_axis(d, nearest[..., None], -1)[..., 0]
-    keep = np.asarray(src_valid, bool) & (dist <= radius)
+    keep = src_ok & (dist <= radius)
     k, i = np.nonzero(keep)
     return k.astype(np.int64), sp[k, i], rp[k, nearest[k, i]], dist[k, i]

@@ -8,7 +8,8 @@ import pytest
 
 from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
 from sgreg_core.pipeline import PipelineConfig, register_features
-from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T, yaw_rotation
+from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, make_T,
+                             yaw_rotation)
 from sgreg_core.pose.guided import GuidedConfig, center_poses, guided_matches
 
 from test_pose_estimator import box_room, pose_error
@@ -48,6 +49,10 @@ def test_guided_matches_pair_points_of_the_same_object_at_the_right_pose_only():
     assert np.isin(r.round(6), ref[:, : K // 2].reshape(-1, 3).round(6)).all(1).all()
     shifted = make_T(T[:3, :3], T[:3, 3] + np.array([1.5, 0, 0]))
     assert len(guided_matches(shifted, src, sv, ref, rv, 0.1)[0]) == 0
+    # a non-finite point marked valid is skipped, and its node's other points still pair
+    ref[0, 0] = np.nan
+    k_nan = guided_matches(T, src, sv, ref, rv, 0.1)[0]
+    assert (k_nan == 0).sum() >= (k == 0).sum() - 3 > 0
     sv[:] = False
     assert len(guided_matches(T, src, sv, ref, rv, 0.1)[0]) == 0
 
@@ -65,8 +70,11 @@ def test_center_poses_bring_decimetre_centers_onto_the_clouds():
     assert 1 <= len(poses) <= 2
     dt, dr = pose_error(poses[0][0], T)
     assert dt < 0.05 and dr < 1.0
-    assert poses[0][1] == max(s for _, s in poses)
-    assert center_poses(src_c[:2], ref_c[:2], np.ones(2), verifier, pose, GuidedConfig()) == []
+    # a non-finite center is dropped, not fatal; fewer than three left: nothing to hypothesise
+    src_c[0] = np.nan
+    assert pose_error(center_poses(src_c, ref_c, np.ones(len(ctr)), verifier, pose,
+                                   GuidedConfig())[0][0], T)[0] < 0.05
+    assert center_poses(src_c[:3], ref_c[:3], np.ones(3), verifier, pose, GuidedConfig()) == []
 
 
 class ScriptedMatcher:
@@ -112,12 +120,45 @@ def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching()
     assert reg.success and reg.guided and reg.mode == "dense"
     dt, dr = pose_error(reg.T, T)
     assert dt < 0.05 and dr < 1.0
-    assert reg.inlier_nodes >= 3 and reg.to_json()["guided"] is True
-    # the same matches against a room whose surfaces are elsewhere: nothing is verified
+    assert reg.inlier_nodes >= GuidedConfig().min_objects and reg.to_json()["guided"] is True
+    assert "guided" in reg.pose_timing_ms and len(reg.inlier_mask) == len(reg.corr)
+    # pairs made at the pose are no evidence for a later estimate: a runtime keeps none of them
+    assert 0 < reg.guided_pairs < len(reg.corr)
+    assert len(reg.inlier_corr()) == reg.inlier_mask[: len(reg.corr) - reg.guided_pairs].sum()
+    # a prebuilt reference (what the nodes pass) gives the same estimate
+    prebuilt = ReferenceCloud(ref_room, on.pose.verify_voxel, on.pose.footprint_cell)
+    again = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
+                              prebuilt, on)
+    assert again.guided and np.allclose(again.T, reg.T)
+    # the same matches against a room whose surfaces are elsewhere: the guided pass runs, and
+    # its estimate is refused
     other = apply_T(T, box_room(np.random.default_rng(9), size=np.array([5.0, 4.0, 2.5])))
     bad = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
                             other, on)
-    assert not bad.success
+    assert not bad.success and not bad.guided and "guided" in bad.pose_timing_ms
+
+
+def test_an_estimate_that_passes_is_left_alone():
+    rng = np.random.default_rng(6)
+    room, objects, ctr = room_objects(rng)
+    T = make_T(yaw_rotation(0.4), np.array([0.5, -2.0, 0.0]))
+    pts = sample(rng, objects)
+    src = features(pts, ctr)
+    ref = features(apply_T(T, pts.reshape(-1, 3)).reshape(pts.shape), apply_T(T, ctr))
+
+    class RightMatcher(ScriptedMatcher):
+        def match_dense(self, src, ref, timings=None):
+            dm = super().match_dense(src, ref)
+            pair = np.repeat(np.arange(self.n), K)
+            p = np.tile(np.arange(K), self.n)
+            dm.points = PointMatches(src.points[pair, p], ref.points[pair, p],
+                                     np.full(pair.size, 0.5, np.float32), pair)
+            return dm
+
+    reg = register_features(RightMatcher(rng, len(ctr)), src, ref, room, apply_T(T, room),
+                            PipelineConfig())
+    assert reg.success and not reg.guided and reg.guided_pairs == 0
+    assert "guided" not in reg.pose_timing_ms and len(reg.corr) == len(ctr) * K
 
 
 def test_guided_matching_answers_only_the_reasons_it_is_given_and_needs_its_objects():
@@ -141,7 +182,9 @@ def test_guided_matching_answers_only_the_reasons_it_is_given_and_needs_its_obje
     assert not too_many.success and not too_many.guided
 
 
-@pytest.mark.parametrize("after", [("ok",), ("no_such_reason",)])
-def test_guided_config_rejects_reasons_that_are_not_refusals(after):
-    with pytest.raises(ValueError, match="guided.after"):
-        GuidedConfig(after=after)
+@pytest.mark.parametrize("bad", [{"after": ("ok",)}, {"after": ("no_such_reason",)},
+                                 {"radius": 0.0}, {"poses": 0}, {"icp_distances": ()},
+                                 {"clique_deltas": (0.2, -0.1)}])
+def test_guided_config_rejects_what_cannot_work(bad):
+    with pytest.raises(ValueError, match="guided"):
+        GuidedConfig(**bad)
