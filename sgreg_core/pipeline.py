@@ -46,7 +46,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .net.model import NodeFeatures, SGRegModel
-from .pose import CloudVerifier, PoseConfig, ReferenceCloud, estimate_pose, nms_correspondences
+from .pose import PoseConfig, ReferenceCloud, estimate_pose, nms_correspondences
+from .pose.estimator import as_points, cloud_verifier
 from .pose.guided import GuidedConfig, center_poses, guided_matches
 from .pose.verdict import Evidence, VerdictConfig
 from .maps.level import LevelConfig, Levelling, level_map
@@ -343,7 +344,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     pose_cfg = cfg.pose_config()
     guided_on = (cfg.guided.enabled and cfg.mode == "dense" and src_cloud is not None
                  and ref_cloud is not None)
-    if guided_on and not isinstance(ref_cloud, ReferenceCloud) and _is_cloud(ref_cloud):
+    if guided_on and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
         # one reference for both passes: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     groups = corr.groups()
@@ -370,14 +371,6 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     return _finish(out, timings, t_start, own_total)
 
 
-def _is_cloud(a) -> bool:
-    try:
-        a = np.asarray(a, np.float64)
-    except (TypeError, ValueError):
-        return False
-    return a.ndim == 2 and a.shape[1] == 3
-
-
 def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, src_ids, ref_ids,
                      corr: Correspondences, src_cloud, ref_cloud: ReferenceCloud,
                      pose_cfg: PoseConfig, gcfg: GuidedConfig):
@@ -386,9 +379,10 @@ def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, sr
     (PoseResult, correspondences: learned then guided, number of guided ones), or None when no
     pair was made. Each set is thinned by the NMS on its own: a point paired at both guided
     poses and by the network is evidence for each of them."""
-    verifier = CloudVerifier(src_cloud, ref_cloud, pose_cfg.verify_voxel, pose_cfg.verify_tau,
-                             gcfg.verify_max_points, pose_cfg.seed, pose_cfg.footprint_cell,
-                             pose_cfg.footprint_rim)
+    verifier = cloud_verifier(src_cloud, ref_cloud,
+                              replace(pose_cfg, verify_max_points=gcfg.verify_max_points))
+    if verifier is None:
+        return None
     poses = center_poses(nodes.src_xyz, nodes.ref_xyz, nodes.score, verifier, pose_cfg, gcfg)
     sp, sv = np.asarray(src_feats.points)[nodes.src_idx], np.asarray(src_feats.valid)[nodes.src_idx]
     rp, rv = np.asarray(ref_feats.points)[nodes.ref_idx], np.asarray(ref_feats.valid)[nodes.ref_idx]

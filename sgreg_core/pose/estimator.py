@@ -152,7 +152,7 @@ class _Clock:
         return self.ms
 
 
-def _as_points(a) -> np.ndarray | None:
+def as_points(a) -> np.ndarray | None:
     """(N, 3) float64 view of `a`, or None when it is not shaped like points."""
     try:
         a = np.asarray(a, dtype=np.float64)
@@ -184,7 +184,7 @@ def _refine(src, ref, w, bounds, T, dof) -> np.ndarray:
     return fit.T if fit.ok else T
 
 
-def _icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
+def refine_icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
     """Point-to-plane ICP of the verifier's voxelised clouds starting at T, on the verifier's
     KD-tree and normals: Gauss-Newton steps of the linearised (small-angle) residual. Plain
     numpy, so the runtime needs no Open3D import (slow, and it failed inside ROS processes)."""
@@ -257,11 +257,6 @@ def pose_hypotheses(src: np.ndarray, ref: np.ndarray, weights: np.ndarray, bound
     return _hypotheses(src, ref, weights, bounds, cfg, gcfg, PoseResult(), _Clock())
 
 
-def refine_icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.ndarray:
-    """Point-to-plane ICP of the verifier's clouds from T (cfg.icp_distance, icp_max_iters)."""
-    return _icp(verifier, T, cfg)
-
-
 def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig) -> bool:
     """T differs from T_ref by at least the competitor distance (translation or rotation)."""
     d = np.linalg.inv(T_ref) @ T
@@ -303,7 +298,7 @@ def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
     for T in hypotheses[:2]:
         fitness = float("nan")
         if verifier is not None and verifier.valid:
-            T = _icp(verifier, T, cfg) if cfg.icp else T
+            T = refine_icp(verifier, T, cfg) if cfg.icp else T
             if not far_apart(T, T_win, cfg.verdict):
                 continue
             fitness = verifier(T).footprint_fitness
@@ -327,7 +322,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
                   verdict counts distinct inlier objects; default each its own.
     """
     clock = _Clock()
-    src, ref = _as_points(src_pts), _as_points(ref_pts)
+    src, ref = as_points(src_pts), as_points(ref_pts)
     if src is None or ref is None or src.shape != ref.shape:
         return PoseResult(reason="invalid_input", timing_ms=clock.done())
     n_in = src.shape[0]
@@ -355,7 +350,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         return result
 
     have_clouds = src_cloud is not None and ref_cloud is not None
-    verifier = _verifier(src_cloud, ref_cloud, cfg) if have_clouds else None
+    verifier = cloud_verifier(src_cloud, ref_cloud, cfg) if have_clouds else None
     inlier_masks = [residuals(T, s, r) <= bk for T in candidates]
     inlier_counts = [int(m.sum()) for m in inlier_masks]
     if verifier is not None and verifier.valid:
@@ -384,7 +379,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     if plausible and ver is not None and cfg.icp:
         # A pose from node centers is decimetres off and the clouds would turn away a pair
         # that ICP aligns; ICP can also slide along a wall, so it must not lose support.
-        T_icp = _icp(verifier, T, cfg)
+        T_icp = refine_icp(verifier, T, cfg)
         ver_icp = verifier(T_icp)
         clock.lap("icp")
         if ver_icp.fitness >= ver.fitness:
@@ -412,9 +407,11 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     return result
 
 
-def _verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | None:
-    sc = _as_points(src_cloud)
-    rc = ref_cloud if isinstance(ref_cloud, ReferenceCloud) else _as_points(ref_cloud)
+def cloud_verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | None:
+    """The CloudVerifier of cfg's verification settings (ref_cloud may be a prebuilt
+    ReferenceCloud), or None when a cloud is not shaped like points."""
+    sc = as_points(src_cloud)
+    rc = ref_cloud if isinstance(ref_cloud, ReferenceCloud) else as_points(ref_cloud)
     if sc is None or rc is None:
         return None
     return CloudVerifier(sc, rc, cfg.verify_voxel, cfg.verify_tau, cfg.verify_max_points,
