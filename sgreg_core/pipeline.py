@@ -49,6 +49,7 @@ from .net.model import NodeFeatures, SGRegModel
 from .pose import PoseConfig, ReferenceCloud, estimate_pose, nms_correspondences
 from .pose.estimator import as_points, cloud_verifier
 from .pose.guided import GuidedConfig, center_poses, guided_matches
+from .pose.repeats import RepeatConfig, placements, rival_fitness
 from .pose.verdict import Evidence, VerdictConfig
 from .maps.level import LevelConfig, Levelling, level_map
 from .maps.scene_graph import GraphConfig, build_scene_graph
@@ -95,7 +96,9 @@ class PipelineConfig:
                     the pose configs' own `icp`.
     min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes").
     guided:         guided point matching when a dense estimate with clouds fails
-                    (pose/guided.py)."""
+                    (pose/guided.py).
+    repeats:        look-alike placements of the source graph in the reference, and the
+                    gates for maps that do not repeat it (pose/repeats.py)."""
 
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
@@ -105,6 +108,7 @@ class PipelineConfig:
     icp: str = "always"
     min_nodes: int = 3
     guided: GuidedConfig = field(default_factory=GuidedConfig)
+    repeats: RepeatConfig = field(default_factory=RepeatConfig)
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -188,9 +192,15 @@ class Registration:
     guided:          True when the estimate needed guided point matches (pose/guided.py).
     guided_pairs:    the last guided_pairs of corr are those guided matches: made at the pose,
                      they are no evidence for a later estimate and are not kept (inlier_corr).
+    repeat:          under the gates for unrepeated maps, the best look-alike placement's
+                     footprint fitness over the estimate's (pose/repeats.py; NaN unless
+                     measured): how well the reference hosts the source elsewhere.
+    unrepeated:      True when the estimate was accepted under the gates for maps that do not
+                     repeat the source's placement (RepeatConfig; it failed the strict ones).
     timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
     pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp) of
-                     the first estimate, and "guided": the whole guided pass when it ran."""
+                     the first estimate, "guided": the whole guided pass when it ran, and
+                     "repeats": the estimate under the gates for unrepeated maps when it ran."""
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
     T_levelled: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -214,6 +224,8 @@ class Registration:
     refined: bool = False
     guided: bool = False
     guided_pairs: int = 0
+    repeat: float = float("nan")
+    unrepeated: bool = False
     timing_ms: dict[str, float] = field(default_factory=dict)
     pose_timing_ms: dict[str, float] = field(default_factory=dict)
 
@@ -256,6 +268,8 @@ class Registration:
             "footprint_fitness": _finite_or_none(self.footprint_fitness),
             "refined": bool(self.refined),
             "guided": bool(self.guided),
+            "repeat": _finite_or_none(self.repeat),
+            "unrepeated": bool(self.unrepeated),
             "evidence": {k: _finite_or_none(v) if isinstance(v, float) else v
                          for k, v in vars(self.evidence).items()},
             "T_competitor": None if self.T_competitor is None else
@@ -342,10 +356,11 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
 
     t0 = time.perf_counter()
     pose_cfg = cfg.pose_config()
-    guided_on = (cfg.guided.enabled and cfg.mode == "dense" and src_cloud is not None
-                 and ref_cloud is not None)
-    if guided_on and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
-        # one reference for both passes: building it is most of the pose time
+    dense_clouds = cfg.mode == "dense" and src_cloud is not None and ref_cloud is not None
+    guided_on = cfg.guided.enabled and dense_clouds
+    second_pass = guided_on or (cfg.repeats.enabled and dense_clouds)
+    if second_pass and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
+        # one reference for every pass: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     groups = corr.groups()
     res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
@@ -359,6 +374,14 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         if second is not None and second[0].success:
             res, corr, out.guided_pairs = second
             groups, out.corr, out.guided = corr.groups(), corr, True
+    if (cfg.repeats.enabled and dense_clouds and res.reason in cfg.repeats.after
+            and isinstance(ref_cloud, ReferenceCloud)):
+        t_rep = time.perf_counter()
+        third, out.repeat = _unrepeated_estimate(
+            corr, src_feats, ref_feats, src_cloud, ref_cloud, pose_cfg, cfg.repeats)
+        if third is not None:
+            res, out.unrepeated = third, True
+        pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.T_levelled = res.T
@@ -405,6 +428,31 @@ def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, sr
     res = estimate_pose(both.src_xyz, both.ref_xyz, both.score, src_cloud, ref_cloud,
                         replace(pose_cfg, nms_radius=0.0, verdict=verdict), groups=both.groups())
     return res, both, len(both) - len(learned)
+
+
+def _unrepeated_estimate(corr: Correspondences, src_feats: NodeFeatures, ref_feats: NodeFeatures,
+                         src_cloud, ref_cloud: ReferenceCloud, pose_cfg: PoseConfig,
+                         rcfg: RepeatConfig):
+    """The estimate again under the gates for unrepeated maps (RepeatConfig: the footprint rim
+    left out, a lower minimum confidence), kept only when it passes them and the reference
+    hosts the source's look-alike placements far from it clearly worse (repeat below
+    rcfg.max_repeat). Returns (PoseResult or None, repeat: the best rival placement's footprint
+    fitness over the estimate's, NaN when not measured)."""
+    relaxed = replace(pose_cfg, footprint_rim=rcfg.footprint_rim,
+                      verdict=replace(pose_cfg.verdict, min_confidence=rcfg.min_confidence))
+    res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud, relaxed,
+                        groups=corr.groups())
+    verifier = cloud_verifier(src_cloud, ref_cloud,
+                              replace(relaxed, verify_max_points=rcfg.verify_max_points))
+    if not res.success or verifier is None:
+        return None, float("nan")
+    place = placements(res.T, src_feats.centers, src_feats.descriptor, ref_feats.centers,
+                       ref_feats.descriptor, rcfg)
+    if place.support < rcfg.min_support:
+        return None, float("nan")
+    repeat = rival_fitness(place, res.T, verifier, relaxed, rcfg) / max(
+        verifier(res.T).footprint_fitness, 1e-9)
+    return (res if repeat < rcfg.max_repeat else None), float(repeat)
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

@@ -126,5 +126,7 @@ class Estimate:
 
     @property
     def evidence(self) -> dict:
-        """The verdict's evidence (pose.verdict.Evidence) as a dict."""
-        return dict(vars(self.registration.evidence))
+        """The verdict's evidence (pose.verdict.Evidence) as a dict, with the repeat check
+        (pose/repeats.py: repeat, unrepeated) of the registration."""
+        reg = self.registration
+        return {**vars(reg.evidence), "repeat": reg.repeat, "unrepeated": reg.unrepeated}

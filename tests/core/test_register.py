@@ -19,7 +19,7 @@ from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 RESULT_KEYS = {"T": list, "success": bool, "node_matches": int, "inliers": int,
                "timing_ms": dict, "reason": str, "weights_id": str, "mode": str,
-               "correspondences": int, "guided": bool, "refined": bool}
+               "correspondences": int, "guided": bool, "refined": bool, "unrepeated": bool}
 
 
 @pytest.fixture(scope="module")
@@ -93,8 +93,11 @@ def test_set_overrides_the_pipeline_config(data, capsys):
     assert pipeline_config(args).pose_config().footprint_rim == 1
     args.overrides = ["guided.enabled=false", "guided.min_objects=5"]
     assert not pipeline_config(args).guided.enabled and pipeline_config(args).guided.min_objects == 5
+    args.overrides = ["repeats.enabled=false", "repeats.max_repeat=0.3"]
+    assert not pipeline_config(args).repeats.enabled and pipeline_config(args).repeats.max_repeat == 0.3
     for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.footprint_rim=1.5",
-                "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers", "guided.after=[ok]"):
+                "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers", "guided.after=[ok]",
+                "repeats.after=[ambiguous, ok]", "repeats.min_confidence=2"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad

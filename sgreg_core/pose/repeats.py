@@ -1,0 +1,223 @@
+"""Does the reference repeat what the source shows? Look-alike placements of the source graph.
+
+The verdict's strictest gates (the 0.9 confidence, the whole footprint in the fitness) are there
+for floors of identical rooms, where a slide by one room width rests on many objects that fit
+well. A partial map of a room that does not repeat pays for them: its right poses are refused for
+a fitness or confidence a little short (docs/VERDICT.md sections 6, 7 and 9). This module measures
+whether the reference could host the source somewhere else as well as at the estimate.
+
+Each source node's look-alikes are the `top_k` reference nodes whose node descriptors are the
+most similar (cosine). A placement of the source (a pose) is supported by the source nodes whose
+center lands within `bound` of one of their look-alikes. Poses are hypothesised from every two
+look-alike pairs of two source nodes (yaw and translation: both graphs are levelled); the best
+supported ones at least the competitor distance from the estimate are its rival placements.
+Node centers alone do not tell a repeat: in a furnished room chance placements of a few chairs
+on other chairs abound. So each rival is brought onto the clouds by coarse-to-fine ICP and
+verified, and
+
+    repeat = the best rival's footprint fitness / the estimate's
+
+Identical rooms give a repeat near 1 (the source fits the twin room as well); a room that does
+not repeat gives a low one. Ground truth plays no part.
+
+Public API:
+    RepeatConfig
+    Placements          support of the estimate's placement and its rival placements
+    placements(T, src_centers, src_desc, ref_centers, ref_desc, cfg) -> Placements
+    rival_fitness(placements, T, verifier, pose_cfg, cfg) -> the best rival's footprint fitness
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .estimator import PoseConfig, far_apart, refine_icp
+from .solvers import apply_T
+from .verdict import REASONS, VerdictConfig
+from .verify import CloudVerifier, check_rim
+
+
+@dataclass
+class RepeatConfig:
+    """top_k:          look-alikes per source node (most similar reference descriptors).
+    bound:             m, a source node center within this of a look-alike supports a placement.
+    min_pair_m:        m, two source nodes closer than this horizontally do not fix a yaw.
+    max_hypotheses:    pose hypotheses scored at most (a seeded subset of the pairs beyond it).
+    competitor_m, competitor_deg: a placement is a rival when it moves the source's nodes'
+                       centroid at least this far from the estimate's placement, or turns it by
+                       this much.
+    seed:              seed of the subset.
+    rivals:            rival placements verified on the clouds, the best supported first and
+                       pairwise far apart (with 3, placements just beyond the competitor
+                       distance, which ICP brings back onto the estimate, crowded out the twin
+                       room on the building suite).
+    icp_distances:     m, correspondence distances of the coarse-to-fine ICP of each rival (a
+                       placement from node centers is decimetres off).
+    icp_max_iters:     ICP iterations per distance.
+    verify_max_points: source points of the clouds the rivals are refined and verified on (as
+                       for guided matching: ranking needs no more, ICP is most of the cost).
+
+    What the pipeline does with it (pipeline.register_features, dense mode with clouds):
+    enabled:           a dense estimate refused for a reason in `after` is estimated again under
+                       the gates for unrepeated maps below, and accepted when the reference does
+                       not repeat the source's placement there.
+    after:             the refusals this may answer: those of the clouds and of the confidence
+                       (the gates that are there for identical rooms).
+    max_repeat:        the map counts as unrepeated when the repeat is below this (chosen on
+                       training rooms, synthetic scenes and the building suite, whose slides
+                       showed 0.48 and up; docs/VERDICT.md section 9)...
+    min_support:       ...and at least this many source nodes land on look-alikes at the estimate.
+    footprint_rim:     PoseConfig.footprint_rim of the second estimate.
+    min_confidence:    VerdictConfig.min_confidence of the second estimate."""
+
+    top_k: int = 3
+    bound: float = 0.4
+    min_pair_m: float = 0.5
+    max_hypotheses: int = 4000
+    competitor_m: float = 1.0
+    competitor_deg: float = 10.0
+    seed: int = 0
+    rivals: int = 10
+    icp_distances: tuple[float, ...] = (0.5, 0.25, 0.1)
+    icp_max_iters: int = 10
+    verify_max_points: int = 600
+    enabled: bool = True
+    after: tuple[str, ...] = ("verification_failed", "low_confidence")
+    max_repeat: float = 0.4
+    min_support: int = 3
+    footprint_rim: int = 1
+    min_confidence: float = 0.8
+
+    def __post_init__(self):
+        bad = [r for r in self.after if r not in REASONS[1:]]
+        if bad:
+            raise ValueError(f"repeats.after: {bad} are not verdict refusals {list(REASONS[1:])}")
+        check_rim(self.footprint_rim)
+        if not (0.0 <= self.min_confidence <= 1.0 and self.max_repeat > 0 and self.min_support >= 1):
+            raise ValueError("repeats: min_confidence must lie in [0, 1], max_repeat > 0, "
+                             "min_support >= 1")
+        if not (self.top_k >= 1 and self.bound > 0 and self.min_pair_m >= 0
+                and self.max_hypotheses >= 1 and self.competitor_m > 0 and self.competitor_deg > 0
+                and self.rivals >= 1 and self.icp_max_iters >= 1 and self.verify_max_points >= 3
+                and len(self.icp_distances)
+                and min(self.icp_distances) > 0):
+            raise ValueError("repeats: top_k, max_hypotheses, rivals and icp_max_iters must be "
+                             ">= 1, verify_max_points >= 3, bound, competitor_m, competitor_deg and icp_distances > 0 (and "
+                             "given), min_pair_m >= 0")
+
+
+@dataclass
+class Placements:
+    """support: source nodes that land on a look-alike at the estimate; rivals: [(T (4, 4),
+    support)] placements far from it and from each other, best supported first."""
+
+    support: int = 0
+    rivals: list = field(default_factory=list)
+
+
+def _unit(desc: np.ndarray) -> np.ndarray:
+    d = np.asarray(desc, np.float64)
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
+
+def _supports(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
+              bound: float) -> np.ndarray:
+    """(H,) source nodes within `bound` of one of their look-alikes under each (R[h], t[h]).
+    src (n, 3), alike (n, k, 3)."""
+    moved = np.einsum("hij,nj->hni", R, src) + t[:, None, :]                  # (H, n, 3)
+    d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)          # (H, n, k)
+    return (d.min(-1) <= bound).sum(-1)
+
+
+def _pair_poses(src: np.ndarray, ref: np.ndarray, node: np.ndarray, cfg: RepeatConfig):
+    """Yaw + translation of every two look-alike pairs (src[i] -> ref[i]) of two different source
+    nodes whose horizontal lengths agree within 2 bounds; a seeded subset beyond max_hypotheses."""
+    i, j = np.triu_indices(src.shape[0], k=1)
+    ds, dr = src[j] - src[i], ref[j] - ref[i]
+    ls, lr = np.linalg.norm(ds[:, :2], axis=1), np.linalg.norm(dr[:, :2], axis=1)
+    ok = ((node[i] != node[j]) & (ls >= cfg.min_pair_m) & (np.abs(ls - lr) <= 2 * cfg.bound)
+          & (np.abs(ds[:, 2] - dr[:, 2]) <= 2 * cfg.bound))
+    i, j, ds, dr = i[ok], j[ok], ds[ok], dr[ok]
+    if i.size > cfg.max_hypotheses:
+        pick = np.sort(np.random.default_rng(cfg.seed).choice(i.size, cfg.max_hypotheses,
+                                                              replace=False))
+        i, j, ds, dr = i[pick], j[pick], ds[pick], dr[pick]
+    yaw = np.arctan2(dr[:, 1], dr[:, 0]) - np.arctan2(ds[:, 1], ds[:, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((yaw.size, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    mid_s, mid_r = 0.5 * (src[i] + src[j]), 0.5 * (ref[i] + ref[j])
+    t = mid_r - np.einsum("hij,hj->hi", R, mid_s)
+    return R, t
+
+
+def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
+               ref_centers: np.ndarray, ref_desc: np.ndarray,
+               cfg: RepeatConfig = RepeatConfig()) -> Placements:
+    """The estimate's placement of the source graph (T: source -> reference, both levelled) and
+    its rival placements among the look-alikes (module doc). Non-finite nodes take no part."""
+    src = np.asarray(src_centers, np.float64).reshape(-1, 3)
+    ref = np.asarray(ref_centers, np.float64).reshape(-1, 3)
+    sd, rd = np.asarray(src_desc, np.float64), np.asarray(ref_desc, np.float64)
+    s_ok = np.isfinite(src).all(1) & np.isfinite(sd).all(1)
+    r_ok = np.isfinite(ref).all(1) & np.isfinite(rd).all(1)
+    src, sd, ref, rd = src[s_ok], sd[s_ok], ref[r_ok], rd[r_ok]
+    if src.shape[0] == 0 or ref.shape[0] == 0 or not np.isfinite(T).all():
+        return Placements()
+    k = min(cfg.top_k, ref.shape[0])
+    sim = _unit(sd) @ _unit(rd).T
+    top = np.argsort(-sim, axis=1, kind="stable")[:, :k]                       # (n, k)
+    alike = ref[top]                                                          # (n, k, 3)
+    T = np.asarray(T, np.float64)
+    out = Placements(support=int(_supports(T[None, :3, :3], T[None, :3, 3], src, alike,
+                                           cfg.bound)[0]))
+    node = np.repeat(np.arange(src.shape[0]), k)
+    R, t = _pair_poses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg)
+    if R.shape[0] == 0:
+        return out
+    # a rival moves the source's centroid far from the estimate's placement, or turns it
+    centroid = src.mean(0)
+    placed = np.einsum("hij,j->hi", R, centroid) + t
+    shift = np.linalg.norm(placed - apply_T(T, centroid[None])[0], axis=1)
+    rel = np.einsum("ji,hjk->hik", T[:3, :3], R)                              # T_R^T R_h
+    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)))
+    far = (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
+    if not far.any():
+        return out
+    R, t, placed = R[far], t[far], placed[far]
+    sup = _supports(R, t, src, alike, cfg.bound)
+    # the best of each cell of half the competitor distance (placed centroid, yaw): thousands of
+    # hypotheses are a few hundred placements
+    order = np.argsort(-sup, kind="stable")
+    yaw = np.degrees(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    cell = np.c_[np.floor(placed[:, :2] / (0.5 * cfg.competitor_m)),
+                 np.floor(yaw / (0.5 * cfg.competitor_deg))].astype(np.int64)
+    _, first = np.unique(cell[order], axis=0, return_index=True)
+    for h in order[np.sort(first)]:
+        if len(out.rivals) == cfg.rivals or sup[h] < cfg.min_support:
+            break
+        T_h = np.eye(4)
+        T_h[:3, :3], T_h[:3, 3] = R[h], t[h]
+        if all(far_apart(T_h, T_o, _far(cfg)) for T_o, _ in out.rivals):
+            out.rivals.append((T_h, int(sup[h])))
+    return out
+
+
+def _far(cfg: RepeatConfig) -> VerdictConfig:
+    return VerdictConfig(competitor_m=cfg.competitor_m, competitor_deg=cfg.competitor_deg)
+
+
+def rival_fitness(place: Placements, T: np.ndarray, verifier: CloudVerifier, pose_cfg: PoseConfig,
+                  cfg: RepeatConfig) -> float:
+    """The best footprint fitness of the rival placements once coarse-to-fine ICP has brought
+    them onto the clouds (0 when none stays far from T): how well the reference's geometry
+    hosts the source elsewhere."""
+    best = 0.0
+    for T_h, _ in place.rivals:
+        for d in cfg.icp_distances:
+            T_h = refine_icp(verifier, T_h, replace(pose_cfg, icp_distance=d,
+                                                    icp_max_iters=cfg.icp_max_iters))
+        if far_apart(T_h, T, _far(cfg)):
+            best = max(best, verifier(T_h).footprint_fitness)
+    return best

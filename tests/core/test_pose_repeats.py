@@ -1,0 +1,126 @@
+"""Look-alike placements (sgreg_core/pose/repeats.py): a reference that repeats the source's room
+shows a rival placement as good as the estimate's, one that does not shows none; the gates for
+unrepeated maps apply only where no rival comes close."""
+import numpy as np
+import pytest
+
+from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T, yaw_rotation
+from sgreg_core.pose.repeats import RepeatConfig, placements, rival_fitness
+
+from test_pose_guided import room_objects
+
+SHIFT = np.array([9.0, 0.0, 0.0])   # the twin room, beyond the first one's walls
+
+
+def descriptors(rng, n):
+    return rng.normal(size=(n, 16))
+
+
+def twin(points):
+    return np.concatenate([points, points + SHIFT])
+
+
+def test_identical_rooms_show_the_twin_placement_as_a_rival():
+    rng = np.random.default_rng(1)
+    _, _, ctr = room_objects(rng, 10)
+    desc = descriptors(rng, 10)
+    T = make_T(yaw_rotation(-0.6), np.array([1.0, 4.0, 0.0]))
+    ref_c, ref_d = apply_T(T, twin(ctr)), np.concatenate([desc, desc])
+    src = ctr[:7] + rng.normal(0, 0.05, (7, 3))
+    place = placements(T, src, desc[:7], ref_c, ref_d)
+    assert place.support == 7 and place.rivals[0][1] == 7
+    T_twin = make_T(T[:3, :3], T[:3, 3] + T[:3, :3] @ SHIFT)
+    assert min(np.linalg.norm(T_r[:3, 3] - T_twin[:3, 3]) for T_r, _ in place.rivals) < 0.3
+    # the rival's clouds fit as well as the estimate's: the reference repeats the source
+    room, _, _ = room_objects(np.random.default_rng(1), 10)
+    verifier = CloudVerifier(room, apply_T(T, twin(room)), 0.1, 0.1, 600, 0, 0.2, 1)
+    cfg = RepeatConfig()
+    own = verifier(T).footprint_fitness
+    assert own > 0.8 and rival_fitness(place, T, verifier, PoseConfig(verify_voxel=0.1), cfg) > 0.8 * own
+
+
+@pytest.mark.parametrize("alike", ["own descriptors", "all alike"])
+def test_the_rivals_of_a_room_that_does_not_repeat_fit_its_clouds_badly(alike):
+    rng = np.random.default_rng(2)
+    room, _, ctr = room_objects(rng, 10)
+    desc = descriptors(rng, 10) if alike == "own descriptors" else np.ones((10, 16))
+    T = make_T(yaw_rotation(0.3), np.array([-2.0, 1.0, 0.0]))
+    src = ctr[:7] + rng.normal(0, 0.05, (7, 3))                     # a partial view
+    place = placements(T, src, desc[:7], apply_T(T, ctr), desc, RepeatConfig(top_k=10))
+    assert place.support == 7 and place.rivals     # chance placements of a few objects exist
+    verifier = CloudVerifier(room, apply_T(T, room), 0.1, 0.1, 600, 0, 0.2, 1)
+    own = verifier(T).footprint_fitness
+    assert rival_fitness(place, T, verifier, PoseConfig(verify_voxel=0.1), RepeatConfig()) < 0.6 * own
+
+
+def test_non_finite_nodes_take_no_part_and_empty_graphs_give_nothing():
+    rng = np.random.default_rng(3)
+    _, _, ctr = room_objects(rng, 8)
+    desc = descriptors(rng, 8)
+    src = ctr.copy()
+    src[0] = np.nan
+    place = placements(np.eye(4), src, desc, ctr, desc)
+    assert place.support == 7
+    assert placements(np.eye(4), np.zeros((0, 3)), np.zeros((0, 16)), ctr, desc).support == 0
+    assert placements(np.full((4, 4), np.nan), ctr, desc, ctr, desc).support == 0
+
+
+@pytest.mark.parametrize("bad", [{"top_k": 0}, {"bound": 0.0}, {"after": ("ok",)},
+                                 {"after": ("too_few_nodes",)}, {"min_confidence": 1.5},
+                                 {"footprint_rim": -1}, {"max_repeat": 0.0}, {"rivals": 0},
+                                 {"icp_distances": ()}])
+def test_repeat_config_rejects_what_cannot_work(bad):
+    with pytest.raises(ValueError):
+        RepeatConfig(**bad)
+
+
+def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat_the_source():
+    from dataclasses import replace
+
+    from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
+    from sgreg_core.pipeline import PipelineConfig, register_features
+    from test_pose_guided import K, sample
+
+    rng = np.random.default_rng(4)
+    room, objects, ctr = room_objects(rng, 12)
+    desc = descriptors(rng, 12)
+    T = make_T(yaw_rotation(0.8), np.array([2.0, 1.0, 0.0]))
+    pts = sample(rng, objects)
+    n = len(ctr)
+
+    class RightMatcher:
+        """Right node and point matches of the first n reference nodes."""
+        def match_dense(self, src, ref, timings=None):
+            idx = np.arange(n)
+            nodes = NodeMatches(idx, idx, np.full(n, 0.9, np.float32), src.centers, ref.centers[:n])
+            pair = np.repeat(idx, K)
+            p = np.tile(np.arange(K), n)
+            return DenseMatches(nodes, PointMatches(src.points[pair, p], ref.points[pair, p],
+                                                    np.full(pair.size, 0.5, np.float32), pair))
+
+    def features(points, centers, d):
+        return NodeFeatures(node_ids=np.arange(len(centers), dtype=np.int64), centers=centers,
+                            descriptor=d, points=points, valid=np.ones(points.shape[:2], bool),
+                            z=np.zeros(points.shape[:2] + (2,), np.float32))
+
+    src = features(pts, ctr, desc)
+    # a confidence model under which this pair falls between the strict and the relaxed gate
+    strict = PipelineConfig(repeats=RepeatConfig(enabled=False)).with_verdict(
+        confidence_weights=(-21.0, 2.5, 15.0, -0.5, -2.4, 1.4))
+    on = replace(strict, repeats=RepeatConfig(min_confidence=0.5))    # on by default
+    one = features(apply_T(T, pts.reshape(-1, 3)).reshape(pts.shape), apply_T(T, ctr), desc)
+    two = features(apply_T(T, twin(pts.reshape(-1, 3))).reshape((2 * n,) + pts.shape[1:]),
+                   apply_T(T, twin(ctr)), np.concatenate([desc, desc]))
+    refused = register_features(RightMatcher(), src, one, room, apply_T(T, room), strict)
+    assert not refused.success and refused.reason == "low_confidence" and not refused.unrepeated
+    assert 0.5 < refused.confidence < 0.9
+
+    reg = register_features(RightMatcher(), src, one, room, apply_T(T, room), on)
+    assert reg.success and reg.unrepeated and reg.repeat < on.repeats.max_repeat, reg.repeat
+    assert np.linalg.norm(reg.T[:3, 3] - T[:3, 3]) < 0.05
+    assert reg.to_json()["unrepeated"] is True and "repeats" in reg.pose_timing_ms
+
+    # the same view in the first of two identical rooms: the twin fits as well, nothing passes
+    in_twins = register_features(RightMatcher(), src, two, room, apply_T(T, twin(room)), on)
+    assert not in_twins.success and not in_twins.unrepeated
+    assert in_twins.repeat >= on.repeats.max_repeat
