@@ -376,11 +376,17 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
             groups, out.corr, out.guided = corr.groups(), corr, True
     if (cfg.repeats.enabled and dense_clouds and res.reason in cfg.repeats.after
             and isinstance(ref_cloud, ReferenceCloud)):
+        # the gates for maps that do not repeat the source: the estimate again under them,
+        # taken only where no look-alike placement of the source fits nearly as well
         t_rep = time.perf_counter()
-        third, out.repeat = _unrepeated_estimate(
-            corr, src_feats, ref_feats, src_cloud, ref_cloud, pose_cfg, cfg.repeats)
-        if third is not None:
-            res, out.unrepeated = third, True
+        relaxed = cfg.repeats.relaxed(pose_cfg)
+        third = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
+                              relaxed, groups=groups)
+        if third.success:
+            out.repeat = _repeat(third.T, src_feats, ref_feats, src_cloud, ref_cloud, relaxed,
+                                 cfg.repeats)
+            if out.repeat < cfg.repeats.max_repeat:   # NaN (nothing to place) is not below
+                res, out.unrepeated = third, True
         pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
@@ -430,29 +436,18 @@ def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, sr
     return res, both, len(both) - len(learned)
 
 
-def _unrepeated_estimate(corr: Correspondences, src_feats: NodeFeatures, ref_feats: NodeFeatures,
-                         src_cloud, ref_cloud: ReferenceCloud, pose_cfg: PoseConfig,
-                         rcfg: RepeatConfig):
-    """The estimate again under the gates for unrepeated maps (RepeatConfig: the footprint rim
-    left out, a lower minimum confidence), kept only when it passes them and the reference
-    hosts the source's look-alike placements far from it clearly worse (repeat below
-    rcfg.max_repeat). Returns (PoseResult or None, repeat: the best rival placement's footprint
-    fitness over the estimate's, NaN when not measured)."""
-    relaxed = replace(pose_cfg, footprint_rim=rcfg.footprint_rim,
-                      verdict=replace(pose_cfg.verdict, min_confidence=rcfg.min_confidence))
-    res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud, relaxed,
-                        groups=corr.groups())
+def _repeat(T: np.ndarray, src_feats: NodeFeatures, ref_feats: NodeFeatures, src_cloud,
+            ref_cloud: ReferenceCloud, pose_cfg: PoseConfig, rcfg: RepeatConfig) -> float:
+    """How well the reference hosts the source elsewhere than at T: the best look-alike
+    placement's footprint fitness over T's (pose/repeats.py), on pose_cfg's verification; NaN
+    when fewer than rcfg.min_support source nodes land on look-alikes at T (nothing to place)."""
     verifier = cloud_verifier(src_cloud, ref_cloud,
-                              replace(relaxed, verify_max_points=rcfg.verify_max_points))
-    if not res.success or verifier is None:
-        return None, float("nan")
-    place = placements(res.T, src_feats.centers, src_feats.descriptor, ref_feats.centers,
+                              replace(pose_cfg, verify_max_points=rcfg.verify_max_points))
+    place = placements(T, src_feats.centers, src_feats.descriptor, ref_feats.centers,
                        ref_feats.descriptor, rcfg)
-    if place.support < rcfg.min_support:
-        return None, float("nan")
-    repeat = rival_fitness(place, res.T, verifier, relaxed, rcfg) / max(
-        verifier(res.T).footprint_fitness, 1e-9)
-    return (res if repeat < rcfg.max_repeat else None), float(repeat)
+    if verifier is None or place.support < rcfg.min_support:
+        return float("nan")
+    return rival_fitness(place, T, verifier, pose_cfg, rcfg) / max(verifier(T).footprint_fitness, 1e-9)
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

@@ -106,6 +106,11 @@ class RepeatConfig:
                              ">= 1, verify_max_points >= 3, bound, competitor_m, competitor_deg and icp_distances > 0 (and "
                              "given), min_pair_m >= 0")
 
+    def relaxed(self, pose_cfg: PoseConfig) -> PoseConfig:
+        """pose_cfg under the gates for unrepeated maps."""
+        return replace(pose_cfg, footprint_rim=self.footprint_rim,
+                       verdict=replace(pose_cfg.verdict, min_confidence=self.min_confidence))
+
 
 @dataclass
 class Placements:
