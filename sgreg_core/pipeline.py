@@ -385,7 +385,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         if third.success:
             out.repeat = _repeat(third.T, src_feats, ref_feats, src_cloud, ref_cloud, relaxed,
                                  cfg.repeats)
-            if out.repeat < cfg.repeats.max_repeat:   # NaN (nothing to place) is not below
+            if out.repeat < cfg.repeats.max_repeat:   # NaN (cannot be told) is not below
                 res, out.unrepeated = third, True
         pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
     _add(timings, "pose", t0)
@@ -439,15 +439,19 @@ def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, sr
 def _repeat(T: np.ndarray, src_feats: NodeFeatures, ref_feats: NodeFeatures, src_cloud,
             ref_cloud: ReferenceCloud, pose_cfg: PoseConfig, rcfg: RepeatConfig) -> float:
     """How well the reference hosts the source elsewhere than at T: the best look-alike
-    placement's footprint fitness over T's (pose/repeats.py), on pose_cfg's verification; NaN
-    when fewer than rcfg.min_support source nodes land on look-alikes at T (nothing to place)."""
+    placement's footprint fitness over T's (pose/repeats.py), on pose_cfg's verification. NaN
+    (taken as a repeat) when it cannot be told: fewer than rcfg.min_support source nodes land
+    on look-alikes at T, the look-alikes fix no pose far from T, or a cloud is malformed."""
     verifier = cloud_verifier(src_cloud, ref_cloud,
                               replace(pose_cfg, verify_max_points=rcfg.verify_max_points))
+    if verifier is None:
+        return float("nan")
     place = placements(T, src_feats.centers, src_feats.descriptor, ref_feats.centers,
                        ref_feats.descriptor, rcfg)
-    if verifier is None or place.support < rcfg.min_support:
+    if place.support < rcfg.min_support or not place.hypotheses:
         return float("nan")
-    return rival_fitness(place, T, verifier, pose_cfg, rcfg) / max(verifier(T).footprint_fitness, 1e-9)
+    own = verifier(T).footprint_fitness
+    return rival_fitness(place, T, verifier, pose_cfg, rcfg) / max(own, 1e-9)
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

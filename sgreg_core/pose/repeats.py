@@ -32,9 +32,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .estimator import PoseConfig, far_apart, refine_icp
-from .solvers import apply_T
-from .verdict import REASONS, VerdictConfig
+from .estimator import PoseConfig, refine_icp
+from .verdict import REASONS
 from .verify import CloudVerifier, check_rim
 
 
@@ -94,7 +93,8 @@ class RepeatConfig:
         if bad:
             raise ValueError(f"repeats.after: {bad} are not verdict refusals {list(REASONS[1:])}")
         check_rim(self.footprint_rim)
-        if not (0.0 <= self.min_confidence <= 1.0 and self.max_repeat > 0 and self.min_support >= 1):
+        if not (0.0 <= self.min_confidence <= 1.0 and self.max_repeat > 0
+                and self.min_support >= 1):
             raise ValueError("repeats: min_confidence must lie in [0, 1], max_repeat > 0, "
                              "min_support >= 1")
         if not (self.top_k >= 1 and self.bound > 0 and self.min_pair_m >= 0
@@ -103,8 +103,8 @@ class RepeatConfig:
                 and len(self.icp_distances)
                 and min(self.icp_distances) > 0):
             raise ValueError("repeats: top_k, max_hypotheses, rivals and icp_max_iters must be "
-                             ">= 1, verify_max_points >= 3, bound, competitor_m, competitor_deg and icp_distances > 0 (and "
-                             "given), min_pair_m >= 0")
+                             ">= 1, verify_max_points >= 3, min_pair_m >= 0, and bound, "
+                             "competitor_m, competitor_deg and icp_distances > 0 (and given)")
 
     def relaxed(self, pose_cfg: PoseConfig) -> PoseConfig:
         """pose_cfg under the gates for unrepeated maps."""
@@ -114,10 +114,14 @@ class RepeatConfig:
 
 @dataclass
 class Placements:
-    """support: source nodes that land on a look-alike at the estimate; rivals: [(T (4, 4),
-    support)] placements far from it and from each other, best supported first."""
+    """support: source nodes that land on a look-alike at the estimate; centroid: (3,) of the
+    source nodes, where "far" is measured; hypotheses: placements far from the estimate that
+    were scored (0: the look-alikes fix no pose, so nothing can be said about repeats);
+    rivals: [(T (4, 4), support)] the best supported of them, far from each other."""
 
     support: int = 0
+    centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    hypotheses: int = 0
     rivals: list = field(default_factory=list)
 
 
@@ -129,20 +133,47 @@ def _unit(desc: np.ndarray) -> np.ndarray:
 def _supports(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
               bound: float) -> np.ndarray:
     """(H,) source nodes within `bound` of one of their look-alikes under each (R[h], t[h]).
-    src (n, 3), alike (n, k, 3)."""
-    moved = np.einsum("hij,nj->hni", R, src) + t[:, None, :]                  # (H, n, 3)
-    d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)          # (H, n, k)
-    return (d.min(-1) <= bound).sum(-1)
+    src (n, 3), alike (n, k, 3). In blocks of hypotheses, so that a large graph stays within
+    a few tens of MB."""
+    block = max(1, 2_000_000 // max(1, alike.shape[0] * alike.shape[1]))
+    out = np.zeros(R.shape[0], np.int64)
+    for a in range(0, R.shape[0], block):
+        moved = np.einsum("hij,nj->hni", R[a:a + block], src) + t[a:a + block, None, :]
+        d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)      # (h, n, k)
+        out[a:a + block] = (d.min(-1) <= bound).sum(-1)
+    return out
+
+
+def _far(R_a, t_a, R_b, t_b, centroid: np.ndarray, cfg: RepeatConfig) -> np.ndarray:
+    """Placements a (R_a (H, 3, 3), t_a (H, 3)) far from b (broadcast): they put the source's
+    centroid at least competitor_m apart, or differ by competitor_deg of rotation. Measured at
+    the centroid, not at the source frame's origin, which may lie far from its nodes."""
+    shift = np.linalg.norm((R_a - R_b) @ centroid + (t_a - t_b), axis=-1)
+    rel = np.einsum("...ji,...jk->...ik", R_b, R_a)
+    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+    return (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
+
+
+def _pairs(m: int, cfg: RepeatConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs i < j of m look-alike pairs: all of them, or a seeded sample when there are
+    many more than max_hypotheses (the full list of a large graph would not fit in memory)."""
+    total = m * (m - 1) // 2
+    if total <= 8 * cfg.max_hypotheses:
+        return np.triu_indices(m, k=1)
+    a, b = np.random.default_rng(cfg.seed).integers(0, m, (2, 8 * cfg.max_hypotheses))
+    keep = a != b
+    return np.minimum(a, b)[keep], np.maximum(a, b)[keep]
 
 
 def _pair_poses(src: np.ndarray, ref: np.ndarray, node: np.ndarray, cfg: RepeatConfig):
-    """Yaw + translation of every two look-alike pairs (src[i] -> ref[i]) of two different source
-    nodes whose horizontal lengths agree within 2 bounds; a seeded subset beyond max_hypotheses."""
-    i, j = np.triu_indices(src.shape[0], k=1)
+    """Yaw + translation of two look-alike pairs (src[i] -> ref[i]) of two different source
+    nodes, both pairs at least min_pair_m apart horizontally and their lengths agreeing within
+    2 bounds; a seeded subset beyond max_hypotheses."""
+    i, j = _pairs(src.shape[0], cfg)
     ds, dr = src[j] - src[i], ref[j] - ref[i]
     ls, lr = np.linalg.norm(ds[:, :2], axis=1), np.linalg.norm(dr[:, :2], axis=1)
-    ok = ((node[i] != node[j]) & (ls >= cfg.min_pair_m) & (np.abs(ls - lr) <= 2 * cfg.bound)
-          & (np.abs(ds[:, 2] - dr[:, 2]) <= 2 * cfg.bound))
+    ok = ((node[i] != node[j]) & (ls >= cfg.min_pair_m) & (lr >= cfg.min_pair_m)
+          & (np.abs(ls - lr) <= 2 * cfg.bound) & (np.abs(ds[:, 2] - dr[:, 2]) <= 2 * cfg.bound))
     i, j, ds, dr = i[ok], j[ok], ds[ok], dr[ok]
     if i.size > cfg.max_hypotheses:
         pick = np.sort(np.random.default_rng(cfg.seed).choice(i.size, cfg.max_hypotheses,
@@ -159,70 +190,63 @@ def _pair_poses(src: np.ndarray, ref: np.ndarray, node: np.ndarray, cfg: RepeatC
 
 def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
                ref_centers: np.ndarray, ref_desc: np.ndarray,
-               cfg: RepeatConfig = RepeatConfig()) -> Placements:
+               cfg: RepeatConfig | None = None) -> Placements:
     """The estimate's placement of the source graph (T: source -> reference, both levelled) and
     its rival placements among the look-alikes (module doc). Non-finite nodes take no part."""
+    cfg = cfg or RepeatConfig()
     src = np.asarray(src_centers, np.float64).reshape(-1, 3)
     ref = np.asarray(ref_centers, np.float64).reshape(-1, 3)
     sd, rd = np.asarray(src_desc, np.float64), np.asarray(ref_desc, np.float64)
     s_ok = np.isfinite(src).all(1) & np.isfinite(sd).all(1)
     r_ok = np.isfinite(ref).all(1) & np.isfinite(rd).all(1)
     src, sd, ref, rd = src[s_ok], sd[s_ok], ref[r_ok], rd[r_ok]
+    T = np.asarray(T, np.float64)
     if src.shape[0] == 0 or ref.shape[0] == 0 or not np.isfinite(T).all():
         return Placements()
     k = min(cfg.top_k, ref.shape[0])
     sim = _unit(sd) @ _unit(rd).T
     top = np.argsort(-sim, axis=1, kind="stable")[:, :k]                       # (n, k)
     alike = ref[top]                                                          # (n, k, 3)
-    T = np.asarray(T, np.float64)
     out = Placements(support=int(_supports(T[None, :3, :3], T[None, :3, 3], src, alike,
-                                           cfg.bound)[0]))
+                                           cfg.bound)[0]), centroid=src.mean(0))
     node = np.repeat(np.arange(src.shape[0]), k)
     R, t = _pair_poses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg)
-    if R.shape[0] == 0:
+    far = _far(R, t, T[:3, :3], T[:3, 3], out.centroid, cfg)
+    R, t = R[far], t[far]
+    out.hypotheses = int(R.shape[0])
+    if not out.hypotheses:
         return out
-    # a rival moves the source's centroid far from the estimate's placement, or turns it
-    centroid = src.mean(0)
-    placed = np.einsum("hij,j->hi", R, centroid) + t
-    shift = np.linalg.norm(placed - apply_T(T, centroid[None])[0], axis=1)
-    rel = np.einsum("ji,hjk->hik", T[:3, :3], R)                              # T_R^T R_h
-    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)))
-    far = (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
-    if not far.any():
-        return out
-    R, t, placed = R[far], t[far], placed[far]
     sup = _supports(R, t, src, alike, cfg.bound)
     # the best of each cell of half the competitor distance (placed centroid, yaw): thousands of
     # hypotheses are a few hundred placements
     order = np.argsort(-sup, kind="stable")
-    yaw = np.degrees(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    placed = R @ out.centroid + t
+    yaw_cells = int(np.ceil(720.0 / cfg.competitor_deg))
+    yaw = np.degrees(np.arctan2(R[:, 1, 0], R[:, 0, 0])) + 180.0
     cell = np.c_[np.floor(placed[:, :2] / (0.5 * cfg.competitor_m)),
-                 np.floor(yaw / (0.5 * cfg.competitor_deg))].astype(np.int64)
+                 np.floor(yaw / (0.5 * cfg.competitor_deg)) % yaw_cells].astype(np.int64)
     _, first = np.unique(cell[order], axis=0, return_index=True)
     for h in order[np.sort(first)]:
         if len(out.rivals) == cfg.rivals or sup[h] < cfg.min_support:
             break
-        T_h = np.eye(4)
-        T_h[:3, :3], T_h[:3, 3] = R[h], t[h]
-        if all(far_apart(T_h, T_o, _far(cfg)) for T_o, _ in out.rivals):
+        if all(_far(R[h], t[h], T_o[:3, :3], T_o[:3, 3], out.centroid, cfg)
+               for T_o, _ in out.rivals):
+            T_h = np.eye(4)
+            T_h[:3, :3], T_h[:3, 3] = R[h], t[h]
             out.rivals.append((T_h, int(sup[h])))
     return out
-
-
-def _far(cfg: RepeatConfig) -> VerdictConfig:
-    return VerdictConfig(competitor_m=cfg.competitor_m, competitor_deg=cfg.competitor_deg)
 
 
 def rival_fitness(place: Placements, T: np.ndarray, verifier: CloudVerifier, pose_cfg: PoseConfig,
                   cfg: RepeatConfig) -> float:
     """The best footprint fitness of the rival placements once coarse-to-fine ICP has brought
-    them onto the clouds (0 when none stays far from T): how well the reference's geometry
-    hosts the source elsewhere."""
+    them onto the clouds (0 when none stays far from T; ICP may bring a rival back onto the
+    estimate): how well the reference's geometry hosts the source elsewhere."""
     best = 0.0
     for T_h, _ in place.rivals:
         for d in cfg.icp_distances:
             T_h = refine_icp(verifier, T_h, replace(pose_cfg, icp_distance=d,
                                                     icp_max_iters=cfg.icp_max_iters))
-        if far_apart(T_h, T, _far(cfg)):
+        if _far(T_h[:3, :3], T_h[:3, 3], T[:3, :3], T[:3, 3], place.centroid, cfg):
             best = max(best, verifier(T_h).footprint_fitness)
     return best

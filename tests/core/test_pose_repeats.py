@@ -124,3 +124,38 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
     in_twins = register_features(RightMatcher(), src, two, room, apply_T(T, twin(room)), on)
     assert not in_twins.success and not in_twins.unrepeated
     assert in_twins.repeat >= on.repeats.max_repeat
+
+
+def test_look_alikes_that_fix_no_pose_give_no_hypothesis():
+    """One reference node (every source node's look-alike): two pairs onto the same point fix no
+    yaw, so nothing can be said about repeats (the pipeline takes that as a repeat)."""
+    rng = np.random.default_rng(5)
+    _, _, ctr = room_objects(rng, 6)
+    desc = descriptors(rng, 6)
+    place = placements(np.eye(4), ctr, desc, ctr[:1], desc[:1])
+    assert place.hypotheses == 0 and place.rivals == []
+
+
+def test_far_is_measured_at_the_nodes_not_at_a_distant_origin():
+    """A source frame whose origin lies 15 m from its nodes: a 6-degree turn about that origin
+    moves the nodes 1.6 m, a rival; the same turn about the nodes' centroid is none."""
+    from sgreg_core.pose.repeats import _far
+
+    cfg = RepeatConfig()
+    centroid = np.array([15.0, 0.0, 0.5])
+    R = yaw_rotation(np.radians(6.0))
+    assert _far(R, np.zeros(3), np.eye(3), np.zeros(3), centroid, cfg)
+    about_nodes = centroid - R @ centroid
+    assert not _far(R, about_nodes, np.eye(3), np.zeros(3), centroid, cfg)
+
+
+def test_a_large_graph_is_placed_from_a_sample_of_its_pairs():
+    """4500 look-alike pairs would make 10 million pairs of pairs: a seeded sample is scored."""
+    rng = np.random.default_rng(6)
+    n = 1500
+    ctr = np.c_[rng.uniform(0, 60, (n, 2)), rng.uniform(0, 2, n)]
+    desc = descriptors(rng, n)
+    place = placements(np.eye(4), ctr, desc, ctr, desc)
+    assert place.support == n and 0 < place.hypotheses <= RepeatConfig().max_hypotheses
+    again = placements(np.eye(4), ctr, desc, ctr, desc)
+    assert [s for _, s in again.rivals] == [s for _, s in place.rivals]     # seeded
