@@ -210,6 +210,15 @@ def refine_icp(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig) -> np.nd
     return T
 
 
+def refine_icp_coarse_to_fine(verifier: CloudVerifier, T: np.ndarray, cfg: PoseConfig,
+                              distances: tuple[float, ...], max_iters: int) -> np.ndarray:
+    """refine_icp at each correspondence distance in turn (max_iters each): brings a pose from
+    node centers, decimetres off, onto the clouds."""
+    for d in distances:
+        T = refine_icp(verifier, T, replace(cfg, icp_distance=d, icp_max_iters=max_iters))
+    return T
+
+
 def _clique_pyramid(s, r, b, w, deltas, cfg: PoseConfig):
     """clique_pyramid on at most max_clique_correspondences of the most confident
     correspondences; the cliques' indices refer to all of them."""

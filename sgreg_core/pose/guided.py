@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .estimator import PoseConfig, far_apart, pose_hypotheses, refine_icp
+from .estimator import PoseConfig, far_apart, pose_hypotheses, refine_icp_coarse_to_fine
 from .solvers import apply_T
 from .verdict import REASONS, VerdictConfig
 from .verify import CloudVerifier
@@ -108,9 +108,7 @@ def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.nd
         if any(not far_apart(T, S, _SAME) for S in seen):   # cliques often repeat a pose
             continue
         seen.append(T)
-        for d in cfg.icp_distances:
-            T = refine_icp(verifier, T, replace(pose_cfg, icp_distance=d,
-                                                icp_max_iters=cfg.icp_max_iters))
+        T = refine_icp_coarse_to_fine(verifier, T, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
         scored.append((T, verifier(T).score))
     scored.sort(key=lambda x: -x[1])
     kept: list[tuple[np.ndarray, float]] = []

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .estimator import PoseConfig, refine_icp
+from .estimator import PoseConfig, refine_icp_coarse_to_fine
 from .verdict import REASONS
 from .verify import CloudVerifier, check_rim
 
@@ -244,9 +244,8 @@ def rival_fitness(place: Placements, T: np.ndarray, verifier: CloudVerifier, pos
     estimate): how well the reference's geometry hosts the source elsewhere."""
     best = 0.0
     for T_h, _ in place.rivals:
-        for d in cfg.icp_distances:
-            T_h = refine_icp(verifier, T_h, replace(pose_cfg, icp_distance=d,
-                                                    icp_max_iters=cfg.icp_max_iters))
+        T_h = refine_icp_coarse_to_fine(verifier, T_h, pose_cfg, cfg.icp_distances,
+                                        cfg.icp_max_iters)
         if _far(T_h[:3, :3], T_h[:3, 3], T[:3, :3], T[:3, 3], place.centroid, cfg):
             best = max(best, verifier(T_h).footprint_fitness)
     return best
