@@ -19,8 +19,12 @@ An estimate that passes the verdict is not yet published as verified. The link t
   candidate (within agree_m / agree_deg); or one that the peer's own estimates of the link
   witness (heard on its sgreg/registration, made from this agent's points against the peer's
   whole map, so other data by construction; confirm_with_peer): the peer's confirmed link, or
-  for a dense estimate a dense one of the peer that passed its verdict. The transform is
-  published from then on, for every estimate that passes the verdict and agrees with the link;
+  for a dense estimate a dense one of the peer that passed its verdict. When a dense answer
+  arrives while no link is confirmed, the coarse estimate of the same graphs, now verifiable
+  on its points, is made first and unpublished (coarse_with_dense): the second estimate that
+  the next coarse graph would bring, so a right first dense estimate is confirmed at once. The
+  transform is published from then on, for every estimate that passes the verdict and agrees
+  with the link;
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
   becomes the new candidate and nothing is published for that peer until a link is confirmed
@@ -143,6 +147,12 @@ class PeersConfig:
         cuts the building suite's merged map wrong from 17 s to 3 s; alone it lets links come
         back by the peer's word before the tie is settled (more wrong frames, not fewer), so
         it is off by default and on in the identical-rooms profile (docs/RESULTS.md, session 9).
+    coarse_with_dense: when a dense answer arrives while no link is confirmed, the coarse
+        estimate of the peer's last coarse graph, now verifiable against the answer's points, is
+        made first (not published: the dense answer answers the query). It is the other kind of
+        data (node centers against points) that the next coarse graph would bring a second later,
+        so a right first dense estimate is confirmed at once instead of published as
+        awaiting_confirmation.
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -195,6 +205,9 @@ class PeersConfig:
     first_link_hold_s: float = param(0.0, "a link is first confirmed only once its candidate has "
                                      "held this long (0: off; for floors of identical rooms)",
                                      0.0, 3600.0, live=True)
+    coarse_with_dense: bool = param(True, "with a dense answer while no link is confirmed, make "
+                                    "the coarse estimate of the same graphs too, as the second "
+                                    "estimate a confirmation needs")
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
@@ -442,11 +455,28 @@ class Peers:
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud = msg, msg.points
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
+        if self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None and link.coarse is not None:
+            self._coarse_alongside(link, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
                                 self._own_reference(msg.points), self._dense_cfg, timings)
         # the evidence is the requested nodes' content: two answers with the same content are
         # the same data, whatever the peer's map sequence says or holds elsewhere
         return self._judge(link, reg, msg.digest, timings, t0, now, dense=msg)
+
+    def _coarse_alongside(self, link: PeerLink, now: float) -> None:
+        """The coarse estimate of the peer's last coarse graph against the own map, verified on
+        the points that just arrived, run through the link's rules but not published
+        (coarse_with_dense): it may become the candidate that the dense estimate confirms."""
+        msg = link.coarse
+        reg = register_features(self.model, msg.nodes, self.agent.features, link.dense_cloud,
+                                self._own_reference(link.dense_cloud), self._coarse_cfg, {})
+        if reg.node_matches < self.cfg.min_coarse_matches:
+            return
+        self._count("coarse_with_dense")
+        to_map_frames(reg, Levelling.from_rotation(msg.level), self.agent.level)
+        hyp = Hypothesis(invert_transform(reg.T), (self.agent.digest, msg.digest, "coarse"), "coarse")
+        self._link_rules(link, reg, hyp, now)
+        link.coarse_data = (self.agent.digest, msg.digest)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Requests the interval held back, retries of unanswered ones (with back-off), and
@@ -706,7 +736,11 @@ class Peers:
                     self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
                     return "ok"
                 self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
-            if cand.kept is None:   # no confirmation, but keep dense inliers
+            if hyp.mode == "dense" and cand.mode != "dense":
+                # the dense estimate stands for the candidate: other data than the coarse
+                # graphs to come, and it brings its inliers to keep
+                link.candidate = hyp
+            elif cand.kept is None:   # no confirmation, but keep dense inliers
                 cand.kept = hyp.kept
         return "awaiting_confirmation"
 

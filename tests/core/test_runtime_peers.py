@@ -41,27 +41,61 @@ def make_agents(model, graphs, cfg=None):
 
 
 def test_coarse_then_dense_then_confirmation_gives_a_verified_transform(model, graphs):
-    a, b, reg, _ = make_agents(model, graphs)
-    est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
-    # nothing to check a pose against yet: the dense answer answers this query
-    assert est is None and reg.counters["deferred_to_dense"] == 1
-    assert req is not None and req.to_agent == "b" and req.from_agent == "a" and len(req.node_ids) >= 3
-    dense = b.dense_message(1, req.node_ids, "a", req.sequence)
-    est = reg.on_dense(dense, now=0.5)
-    assert est.mode == "dense" and not est.verified
-    assert est.reason == "awaiting_confirmation" and est.link == "candidate"
-    assert rte(est.T, T_GT) < 0.2 and est.confidence > 0.5
-    assert reg.links["b"].pending is None
-    # node centers of the next coarse graph are other evidence than the points: it confirms
-    est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
-    assert est.verified and est.reason == "ok" and est.link == "confirmed", est.reason
+    """The second estimate a first link needs is the coarse estimate of the same graphs, made
+    when the points arrive (coarse_with_dense), or else the next coarse graph's."""
+    for at_once in (True, False):
+        a, b, reg, _ = make_agents(model, graphs, PeersConfig(coarse_with_dense=at_once))
+        est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        # nothing to check a pose against yet: the dense answer answers this query
+        assert est is None and reg.counters["deferred_to_dense"] == 1
+        assert req is not None and req.to_agent == "b" and req.from_agent == "a" and len(req.node_ids) >= 3
+        dense = b.dense_message(1, req.node_ids, "a", req.sequence)
+        est = reg.on_dense(dense, now=0.5)
+        assert est.mode == "dense" and rte(est.T, T_GT) < 0.2 and est.confidence > 0.5
+        assert reg.links["b"].pending is None
+        if at_once:
+            assert est.verified and est.link == "confirmed", est.reason
+        else:
+            assert not est.verified and est.reason == "awaiting_confirmation" and est.link == "candidate"
+            # node centers of the next coarse graph are other evidence than the points: it confirms
+            est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+            assert est.verified and est.reason == "ok" and est.link == "confirmed", est.reason
+        assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
+        assert reg.counters["confirmed"] == 1
+        # the next coarse message merges the dense inliers kept with the link, and is verified
+        est, req = reg.on_coarse(b.coarse_message(3), now=2.0)
+        assert est.mode == "merged" and est.verified
+        assert rte(est.T, T_GT) < 0.2
+        assert req is None   # min_request_interval_s has not passed
+
+
+def test_the_coarse_estimate_of_the_same_graphs_confirms_a_first_dense_one_at_once(model, graphs):
+    """coarse_with_dense: when the dense answer arrives, the coarse estimate of the peer's last
+    coarse graph (node centers, now verifiable on the points) is the second estimate from
+    other data, so a right first dense estimate is published as verified at once. A coarse
+    estimate the verdict refuses confirms nothing, nor does one on a link already confirmed."""
+    def first_dense(cfg):
+        a, b, reg, _ = make_agents(model, graphs, cfg)
+        est, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        assert est is None
+        return reg, b, req, reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+
+    reg, b, req, est = first_dense(PeersConfig(coarse_with_dense=True))
+    assert est.mode == "dense" and est.verified and est.link == "confirmed", est.reason
     assert rte(est.T, T_GT) < 0.2 and rre(est.T, T_GT) < 2.0
-    assert reg.counters["confirmed"] == 1
-    # the next coarse message merges the dense inliers kept with the link, and is verified
-    est, req = reg.on_coarse(b.coarse_message(3), now=2.0)
-    assert est.mode == "merged" and est.verified
-    assert rte(est.T, T_GT) < 0.2
-    assert req is None   # min_request_interval_s has not passed
+    assert reg.counters["coarse_with_dense"] == 1 and reg.counters["confirmed"] == 1
+    # the link is confirmed: the next dense answer runs no coarse estimate beside it
+    drift(b, graphs, 2, 1.0)
+    reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=9.0).verified
+    assert reg.counters["coarse_with_dense"] == 1
+    base = PeersConfig(coarse_with_dense=True)
+    refuse = replace(base.pipeline.coarse_pose, verdict=replace(base.pipeline.coarse_pose.verdict,
+                                                                  min_objects=10_000))
+    reg, *_, est = first_dense(replace(base, pipeline=replace(base.pipeline, coarse_pose=refuse)))
+    assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 1
+    reg, *_, est = first_dense(PeersConfig(coarse_with_dense=False))
+    assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 0
 
 
 def drift(agent, graphs, map_sequence, now, dx=0.02):
@@ -71,7 +105,8 @@ def drift(agent, graphs, map_sequence, now, dx=0.02):
 
 
 def test_the_same_data_twice_does_not_confirm(model, graphs):
-    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    # without the coarse estimate beside the dense ones, which is other data
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0, coarse_with_dense=False))
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     for seq in (1, 2):   # two dense answers from the same maps
         est = reg.on_dense(b.dense_message(seq, req.node_ids, "a", req.sequence), now=seq)
@@ -93,6 +128,7 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
     from sgreg_core.geometry import invert_transform
     T_ba = invert_transform(T_GT)          # what b publishes: maps b's frame into a's
     off = yaw_transform(np.radians(30.0), (1.0, 0.0, 0.0)) @ T_ba
+    alone = PeersConfig(coarse_with_dense=False)   # b's word is the only second estimate
     for witness, verified, mode, reason, age, confirmed in [
             (T_ba, True, "merged", "ok", 1.0, True),
             (T_ba, False, "dense", "awaiting_confirmation", 1.0, True),
@@ -100,7 +136,7 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
             (T_ba, True, "dense", "ok", 30.0, False),
             (T_ba, False, "coarse", "awaiting_confirmation", 1.0, False),
             (T_ba, False, "dense", "verification_failed", 1.0, False)]:
-        a, b, reg, _ = make_agents(model, graphs)
+        a, b, reg, _ = make_agents(model, graphs, alone)
         reg.on_peer_result("b", witness, verified, mode, reason, "confirmed" if verified else "candidate",
                            now=0.5 - age)   # before b's first graph
         _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
@@ -108,7 +144,7 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
         assert est.verified is confirmed, (verified, mode, reason, age, est.reason)
         assert reg.counters["confirmed_by_peer"] == int(confirmed)
     # heard after a's dense candidate: the candidate is confirmed there and then
-    a, b, reg, _ = make_agents(model, graphs)
+    a, b, reg, _ = make_agents(model, graphs, alone)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).link == "candidate"
     reg.on_peer_result("b", off, True, "dense", "ok", "confirmed", now=0.6)
@@ -119,18 +155,18 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
     est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
     assert est.verified and est.mode == "merged", est.reason
     # a coarse estimate needs b's confirmed link, not just its dense estimate
-    a, b, reg, _ = make_agents(model, graphs)
+    a, b, reg, _ = make_agents(model, graphs, alone)
     reg.on_peer_result("b", T_ba, False, "dense", "ok", "candidate", now=0.0)
     assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5)
     assert reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "dense"), "dense"), "b", 0.5)
     # a link b gives up (contradicted, disputed by its cycles, no longer confirmed) is taken back
     for reason, link_state in (("contradicted", "candidate"), ("disputed_by_cycles", "confirmed"),
                                ("too_few_inliers", "none")):
-        a, b, reg, _ = make_agents(model, graphs)
+        a, b, reg, _ = make_agents(model, graphs, alone)
         reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
         reg.on_peer_result("b", off, False, "coarse", reason, link_state, now=0.1)
         assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5), reason
-    a, b, reg, _ = make_agents(model, graphs, PeersConfig(confirm_with_peer=False))
+    a, b, reg, _ = make_agents(model, graphs, replace(alone, confirm_with_peer=False))
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     reg.on_peer_result("b", T_ba, True, "dense", "ok", "confirmed", now=0.4)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
@@ -178,7 +214,8 @@ def test_after_a_tie_only_the_peers_word_confirms_for_a_while(model, graphs):
 
     def after_a_tie(tie_memory_s, witness=False):
         a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0,
-                                                              tie_memory_s=tie_memory_s))
+                                                              tie_memory_s=tie_memory_s,
+                                                              coarse_with_dense=False))
         _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
         shipped = reg._dense_cfg
         verdict = replace(shipped.pose.verdict, max_ambiguity=0.0)   # every dense estimate ties
@@ -222,7 +259,7 @@ def test_a_first_link_waits_until_its_candidate_has_stood_first_link_hold_s(mode
     reg, (early, late) = coarse_after_dense(PeersConfig(first_link_hold_s=2.0), witness_at=0.8)
     assert early.reason == "awaiting_confirmation", early.reason   # the peer agreed at 0.8: too early
     assert late.verified and reg.counters["confirmed_by_peer"] == 1
-    reg, (early, late) = coarse_after_dense(PeersConfig())
+    reg, (early, late) = coarse_after_dense(PeersConfig(coarse_with_dense=False))
     assert early.verified and late.verified
 
 
@@ -534,7 +571,7 @@ def test_a_peer_other_agents_place_is_searched_rarely(model, graphs):
         _, first = reg.on_coarse(b.coarse_message(1), now=0.0)
         assert first is not None                 # the last request was long ago
         reg.on_dense(b.dense_message(1, first.node_ids, "a", first.sequence), now=0.5)
-        reg.links["b"].candidate = None          # still searching: no link of a's own
+        reg.links["b"].candidate = reg.links["b"].confirmed = None   # still searching: no link of a's own
         drift(b, graphs, 5, 9.0)
         _, req = reg.on_coarse(b.coarse_message(2), now=10.0)
         assert (req is not None) == asks, (attached, placed)
