@@ -455,7 +455,9 @@ class Peers:
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud = msg, msg.points
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
-        if self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None and link.coarse is not None:
+        if (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
+                and link.coarse is not None and np.allclose(link.coarse.level, msg.level, atol=1e-9)):
+            # (a coarse graph levelled otherwise than the points lies in another frame)
             self._coarse_alongside(link, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
                                 self._own_reference(msg.points), self._dense_cfg, timings)

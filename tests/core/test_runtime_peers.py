@@ -96,6 +96,14 @@ def test_the_coarse_estimate_of_the_same_graphs_confirms_a_first_dense_one_at_on
     assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 1
     reg, *_, est = first_dense(PeersConfig(coarse_with_dense=False))
     assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 0
+    # a coarse graph levelled otherwise than the points that answer it lies in another frame
+    from scipy.spatial.transform import Rotation
+    a, b, reg, _ = make_agents(model, graphs, base)
+    msg = b.coarse_message(1)
+    msg.level = Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix()
+    _, req = reg.on_coarse(msg, now=0.0)
+    est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 0
 
 
 def drift(agent, graphs, map_sequence, now, dx=0.02):
