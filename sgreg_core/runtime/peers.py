@@ -21,10 +21,10 @@ An estimate that passes the verdict is not yet published as verified. The link t
   whole map, so other data by construction; confirm_with_peer): the peer's confirmed link, or
   for a dense estimate a dense one of the peer that passed its verdict. When a dense answer
   arrives while no link is confirmed, the coarse estimate of the same graphs, now verifiable
-  on its points, is made first and unpublished (coarse_with_dense): the second estimate that
-  the next coarse graph would bring, so a right first dense estimate is confirmed at once. The
-  transform is published from then on, for every estimate that passes the verdict and agrees
-  with the link;
+  on its points, is made beside it, unpublished (coarse_with_dense): the second estimate that
+  the next coarse graph would bring, so a right first dense estimate that it agrees with is
+  confirmed at once. The transform is published from then on, for every estimate that passes
+  the verdict and agrees with the link;
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
   becomes the new candidate and nothing is published for that peer until a link is confirmed
@@ -148,11 +148,13 @@ class PeersConfig:
         back by the peer's word before the tie is settled (more wrong frames, not fewer), so
         it is off by default and on in the identical-rooms profile (docs/RESULTS.md, session 9).
     coarse_with_dense: when a dense answer arrives while no link is confirmed, the coarse
-        estimate of the peer's last coarse graph, now verifiable against the answer's points, is
-        made first (not published: the dense answer answers the query). It is the other kind of
-        data (node centers against points) that the next coarse graph would bring a second later,
-        so a right first dense estimate is confirmed at once instead of published as
-        awaiting_confirmation.
+        estimate of the peer's last coarse graph (in the frame of the answer's points: levelled
+        alike, its nodes not moved), now verifiable against those points, is made too (not
+        published: the dense answer answers the query). It is the other kind of data (node
+        centers against points) that the next coarse graph would bring a second later, so a
+        right first dense estimate that it agrees with is confirmed at once instead of published
+        as awaiting_confirmation. It confirms the dense estimate or nothing: it changes no link
+        state of its own (a tie it finds is remembered, as any tie).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -455,30 +457,38 @@ class Peers:
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud = msg, msg.points
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
-        if (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
-                and link.coarse is not None and np.allclose(link.coarse.level, msg.level, atol=1e-9)):
-            # (a coarse graph levelled otherwise than the points lies in another frame)
-            self._coarse_alongside(link, now)
+        beside = self._coarse_beside(link, msg, timings, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
                                 self._own_reference(msg.points), self._dense_cfg, timings)
         # the evidence is the requested nodes' content: two answers with the same content are
         # the same data, whatever the peer's map sequence says or holds elsewhere
-        return self._judge(link, reg, msg.digest, timings, t0, now, dense=msg)
+        return self._judge(link, reg, msg.digest, timings, t0, now, dense=msg, beside=beside)
 
-    def _coarse_alongside(self, link: PeerLink, now: float) -> None:
-        """The coarse estimate of the peer's last coarse graph against the own map, verified on
-        the points that just arrived, run through the link's rules but not published
-        (coarse_with_dense): it may become the candidate that the dense estimate confirms."""
+    def _coarse_beside(self, link: PeerLink, dense: GraphMessage, timings: dict,
+                       now: float) -> Hypothesis | None:
+        """coarse_with_dense: while no link is confirmed, the coarse estimate of the peer's last
+        coarse graph against the own map, verified on the points that just arrived. Returned
+        when it passes the verdict, as the second estimate the dense one may be confirmed by
+        (Peers._link_rules); it changes no link state itself, but a tie it finds is a tie.
+        None when off, when the link is confirmed, or when the coarse graph is not the frame of
+        the points (levelled otherwise, or its nodes moved since, as for kept correspondences)."""
         msg = link.coarse
+        if not (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
+                and msg is not None and np.allclose(msg.level, dense.level, atol=1e-9)):
+            return None
+        then = _centers_of(dense.nodes.node_ids, msg.nodes.node_ids, msg.nodes.centers)
+        if _median_shift(then, dense.nodes.node_ids, dense.nodes.centers) > self.cfg.kept_max_shift_m:
+            return None
+        t0 = time.perf_counter()
         reg = register_features(self.model, msg.nodes, self.agent.features, link.dense_cloud,
                                 self._own_reference(link.dense_cloud), self._coarse_cfg, {})
-        if reg.node_matches < self.cfg.min_coarse_matches:
-            return
+        timings["coarse_with_dense"] = 1e3 * (time.perf_counter() - t0)
         self._count("coarse_with_dense")
-        to_map_frames(reg, Levelling.from_rotation(msg.level), self.agent.level)
-        hyp = Hypothesis(invert_transform(reg.T), (self.agent.digest, msg.digest, "coarse"), "coarse")
-        self._link_rules(link, reg, hyp, now)
-        link.coarse_data = (self.agent.digest, msg.digest)
+        if reg.reason == "ambiguous":
+            link.tie_at = now
+        if not reg.success or reg.node_matches < self.cfg.min_coarse_matches:
+            return None
+        return Hypothesis(self._own_to_peer(reg, msg), (self.agent.digest, msg.digest, "coarse"), "coarse")
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Requests the interval held back, retries of unanswered ones (with back-off), and
@@ -643,14 +653,14 @@ class Peers:
         link.exchanged = None
 
     def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
-               t0: float, now: float, dense: GraphMessage | None = None) -> Estimate:
-        """The estimate as published: the verdict of the pipeline, then the link's rules."""
+               t0: float, now: float, dense: GraphMessage | None = None,
+               beside: Hypothesis | None = None) -> Estimate:
+        """The estimate as published: the verdict of the pipeline, then the link's rules
+        (beside: an unpublished estimate of the same query from other data, _coarse_beside)."""
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         self._count(f"estimates_{reg.mode}")
         peer_msg = dense if dense is not None else link.coarse
-        # estimated between the levelled graphs, published between the maps as they are
-        to_map_frames(reg, Levelling.from_rotation(peer_msg.level), self.agent.level)
-        T = invert_transform(reg.T)          # the pipeline maps peer -> own; publish own -> peer
+        T = self._own_to_peer(reg, peer_msg)
         if self._vouched(link.peer_id, reg, T, now):
             reg.success, reg.reason = True, "ok"
             self._count("vouched_by_peer")
@@ -666,7 +676,7 @@ class Peers:
                             _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R)
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept)
-            reason = self._link_rules(link, reg, hyp, now)
+            reason = self._link_rules(link, reg, hyp, now, beside)
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
@@ -681,6 +691,12 @@ class Peers:
             self._count("verified")
         return est
 
+    def _own_to_peer(self, reg: Registration, peer_msg: GraphMessage) -> np.ndarray:
+        """T_agent^peer of an estimate: estimated between the levelled graphs (peer -> own),
+        published between the maps as they are, own -> peer."""
+        to_map_frames(reg, Levelling.from_rotation(peer_msg.level), self.agent.level)
+        return invert_transform(reg.T)
+
     def _off_merged_frame(self, peer: str, T: np.ndarray) -> bool:
         """Whether T disagrees with where the merged frame of three or more agents puts the
         peer (by the cycle tolerance): a link that the next merge would reject is not published
@@ -692,8 +708,11 @@ class Peers:
     def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
         return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg
 
-    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis, now: float) -> str:
-        """"ok" when the estimate may be published as verified, else why not; updates the link."""
+    def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis, now: float,
+                    beside: Hypothesis | None = None) -> str:
+        """"ok" when the estimate may be published as verified, else why not; updates the link.
+        beside: an unpublished estimate of the same query that passed the verdict
+        (coarse_with_dense), one more estimate that may confirm hyp; it changes nothing else."""
         merged = reg.mode == "merged"
         if not reg.success:
             if reg.reason == "ambiguous":
@@ -732,18 +751,17 @@ class Peers:
         if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
-        if cand is not None:    # hyp agrees with the link's candidate
-            if self._independent(cand, hyp) and self._held_long(link, now):
-                if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
-                    self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else cand)
-                    return "ok"
-                self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
-            if hyp.mode == "dense" and cand.mode != "dense":
-                # the dense estimate stands for the candidate: other data than the coarse
-                # graphs to come, and it brings its inliers to keep
-                link.candidate = hyp
-            elif cand.kept is None:   # no confirmation, but keep dense inliers
-                cand.kept = hyp.kept
+        # the agreeing estimates from other data: the link's candidate (it agrees, or it was
+        # replaced above) and the unpublished one beside this query (coarse_with_dense)
+        seconds = [o for o in (cand, beside) if o is not None and self._agree(hyp.T, o.T)
+                   and self._independent(o, hyp)]
+        if seconds and self._held_long(link, now):
+            if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
+                self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else seconds[0])
+                return "ok"
+            self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
+        if cand is not None and cand.kept is None:   # no confirmation, but keep dense inliers
+            cand.kept = hyp.kept
         return "awaiting_confirmation"
 
     def _withdraw(self, link: PeerLink, counter: str, why: str, candidate: Hypothesis | None,

@@ -106,6 +106,62 @@ def test_the_coarse_estimate_of_the_same_graphs_confirms_a_first_dense_one_at_on
     assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 0
 
 
+def test_the_coarse_estimate_beside_a_dense_one_confirms_it_or_nothing(model, graphs):
+    """The unpublished coarse estimate changes no link state of its own: a wrong one neither
+    replaces the link's candidate nor, with the peer's word, confirms a link that the dense
+    estimate would then have to withdraw; a tie it finds is remembered; with confirm off or too
+    few coarse matches it plays no part."""
+    from sgreg_core.geometry import invert_transform
+    off = yaw_transform(np.radians(30.0), (1.0, 0.0, 0.0)) @ invert_transform(T_GT)   # b -> a, wrong
+
+    def wrong_beside(reg):
+        made = reg._coarse_beside
+
+        def beside(*args):
+            hyp = made(*args)
+            return None if hyp is None else Hypothesis(invert_transform(off), hyp.data, hyp.mode)
+        reg._coarse_beside = beside
+
+    # a wrong coarse estimate beside each answer: the dense candidate stands, and the next
+    # answer from new data confirms it
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    wrong_beside(reg)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
+        == "awaiting_confirmation"
+    drift(b, graphs, 2, 1.0)
+    est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.0)
+    assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
+    # the peer's confirmed link agrees with the wrong coarse estimate, not with the dense one:
+    # nothing is confirmed, so nothing is contradicted
+    a, b, reg, _ = make_agents(model, graphs)
+    wrong_beside(reg)
+    reg.on_peer_result("b", off, True, "merged", "ok", "confirmed", now=0.0)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    assert est.reason == "awaiting_confirmation" and reg.links["b"].state == "candidate"
+    assert reg.counters["withdrawn"] == reg.counters["confirmed_by_peer"] == 0
+    # a coarse estimate beside the answer that ties is a tie: only the peer's word confirms
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0, tie_memory_s=10.0))
+    shipped = reg._coarse_cfg
+    reg._coarse_cfg = replace(shipped, coarse_pose=replace(
+        shipped.coarse_pose, verdict=replace(shipped.coarse_pose.verdict, max_ambiguity=0.0)))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    drift(b, graphs, 2, 1.0)
+    est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.0)
+    assert est.reason == "awaiting_confirmation" and reg.counters["held_by_tie"] == 1, est.reason
+    # no coarse estimate beside the answer without confirmation, nor with too few coarse matches
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(confirm=False))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).verified
+    assert reg.counters["coarse_with_dense"] == 0
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_coarse_matches=1000))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
+        == "awaiting_confirmation"
+
+
 def drift(agent, graphs, map_sequence, now, dx=0.02):
     """The agent's map (the peer's graph of `graphs`) with other content: shifted by dx."""
     moved = moved_graph(graphs[1], yaw_transform(0.0, (dx, 0.0, 0.0)), np.random.default_rng(map_sequence))
@@ -579,7 +635,8 @@ def test_a_peer_other_agents_place_is_searched_rarely(model, graphs):
         _, first = reg.on_coarse(b.coarse_message(1), now=0.0)
         assert first is not None                 # the last request was long ago
         reg.on_dense(b.dense_message(1, first.node_ids, "a", first.sequence), now=0.5)
-        reg.links["b"].candidate = reg.links["b"].confirmed = None   # still searching: no link of a's own
+        link = reg.links["b"]
+        link.candidate = link.confirmed = link.kept = None   # still searching: no link of a's own
         drift(b, graphs, 5, 9.0)
         _, req = reg.on_coarse(b.coarse_message(2), now=10.0)
         assert (req is not None) == asks, (attached, placed)
