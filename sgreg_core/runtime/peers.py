@@ -760,7 +760,12 @@ class Peers:
                 self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else seconds[0])
                 return "ok"
             self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
-        if cand is not None and cand.kept is None:   # no confirmation, but keep dense inliers
+        if cand is not None and hyp.mode == "dense" and cand.mode != "dense":
+            # the dense estimate stands for the coarse candidate it agrees with (while the hold
+            # or a tie keeps it from confirming): the coarse graphs to come are other data for
+            # it, not for the candidate they may repeat, and it brings its inliers to keep
+            link.candidate = hyp
+        elif cand is not None and cand.kept is None:   # no confirmation, but keep dense inliers
             cand.kept = hyp.kept
         return "awaiting_confirmation"
 

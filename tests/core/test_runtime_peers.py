@@ -327,6 +327,26 @@ def test_a_first_link_waits_until_its_candidate_has_stood_first_link_hold_s(mode
     assert early.verified and late.verified
 
 
+def test_a_dense_estimate_stands_for_the_coarse_candidate_it_agrees_with(model, graphs):
+    """Under first_link_hold_s: a coarse candidate, then a dense estimate that agrees but may
+    not confirm yet; the next coarse graph, the same data as the coarse candidate, is other data
+    than the dense one and confirms once the candidate has stood long enough."""
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(first_link_hold_s=2.0, coarse_with_dense=False,
+                                                          min_request_interval_s=0.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    shipped = reg._dense_cfg
+    reg._dense_cfg = replace(shipped, pose=replace(shipped.pose, verdict=replace(
+        shipped.pose.verdict, min_objects=10_000)))          # the first dense estimate is refused
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason == "too_few_objects"
+    reg._dense_cfg = shipped
+    coarse, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert coarse.reason == "awaiting_confirmation" and reg.links["b"].candidate.mode == "coarse"
+    dense = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.5)
+    assert dense.reason == "awaiting_confirmation" and reg.links["b"].candidate.mode == "dense"
+    est, _ = reg.on_coarse(b.coarse_message(3), now=3.5)
+    assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
