@@ -751,8 +751,9 @@ class Peers:
         if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
-        # the agreeing estimates from other data: the link's candidate (it agrees, or it was
-        # replaced above) and the unpublished one beside this query (coarse_with_dense)
+        # the estimates from other data that agree with hyp: the link's candidate (still set
+        # only when hyp agrees with it) and the unpublished one beside this query
+        # (coarse_with_dense)
         seconds = [o for o in (cand, beside) if o is not None and self._agree(hyp.T, o.T)
                    and self._independent(o, hyp)]
         if seconds and self._held_long(link, now):
