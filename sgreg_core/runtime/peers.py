@@ -246,6 +246,11 @@ def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> d
     return {int(i): np.asarray(centers[index[int(i)]], np.float64) for i in np.unique(ids) if int(i) in index}
 
 
+def _levelled_alike(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two levelling rotations are the same (data levelled by them share a frame)."""
+    return np.allclose(a, b, atol=1e-9)
+
+
 def _median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.ndarray) -> float:
     """Median movement of the nodes in `then` (inf when fewer than half of them are left)."""
     now = _centers_of(np.fromiter(then, np.int64), node_ids, centers)
@@ -474,7 +479,7 @@ class Peers:
         the points (levelled otherwise, or its nodes moved since, as for kept correspondences)."""
         msg = link.coarse
         if not (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
-                and msg is not None and np.allclose(msg.level, dense.level, atol=1e-9)):
+                and msg is not None and _levelled_alike(msg.level, dense.level)):
             return None
         then = _centers_of(dense.nodes.node_ids, msg.nodes.node_ids, msg.nodes.centers)
         if _median_shift(then, dense.nodes.node_ids, dense.nodes.centers) > self.cfg.kept_max_shift_m:
@@ -627,8 +632,8 @@ class Peers:
         """Drop the kept correspondences and the peer's dense cloud when the nodes they come
         from moved in either map since they were kept, or either map was levelled anew (they
         are in the levelled frames of then)."""
-        relevelled = (link.dense is not None and not np.allclose(link.dense.level, msg.level, atol=1e-9)) or \
-            (link.kept is not None and not np.allclose(link.kept.own_level, self.agent.level.R, atol=1e-9))
+        relevelled = (link.dense is not None and not _levelled_alike(link.dense.level, msg.level)) or \
+            (link.kept is not None and not _levelled_alike(link.kept.own_level, self.agent.level.R))
         if relevelled and (link.kept is not None or link.dense_cloud is not None):
             self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
             self._drop_dense(link)
