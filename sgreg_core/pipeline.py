@@ -120,6 +120,12 @@ class PipelineConfig:
         icp = self.icp == "always" or (self.icp == "coarse" and self.mode == "coarse")
         return replace(self.pose if self.mode == "dense" else self.coarse_pose, icp=icp)
 
+    def with_pose(self, **changes) -> "PipelineConfig":
+        """The same config with estimator settings (pose.PoseConfig) changed in both the dense
+        and the coarse pose configs."""
+        return replace(self, pose=replace(self.pose, **changes),
+                       coarse_pose=replace(self.coarse_pose, **changes))
+
     def with_verdict(self, **changes) -> "PipelineConfig":
         """The same config with verdict settings (pose/verdict.VerdictConfig) changed in both
         the dense and the coarse pose configs."""

@@ -12,7 +12,8 @@ stops asking peers that are already placed for dense data (runtime/merge.py).
 
 All decisions live in sgreg_core.runtime.peers.Peers and runtime.merge.Merger; the parameters
 are declared from the configs (PeersConfig, AgentConfig, GraphConfig, the verdict's min_fitness
-and min_confidence, MergeConfig, HealthConfig and RegistrationNodeConfig below)."""
+and min_confidence, the verification's footprint_probe, MergeConfig, HealthConfig and
+RegistrationNodeConfig below)."""
 from __future__ import annotations
 
 import re
@@ -27,6 +28,7 @@ from tf2_msgs.msg import TFMessage
 
 from sgreg_core.config import param
 from sgreg_core.maps.scene_graph import GraphConfig
+from sgreg_core.pose.estimator import PoseConfig
 from sgreg_core.pose.verdict import VerdictConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
 from sgreg_core.runtime.auth import AuthConfig
@@ -62,7 +64,7 @@ class RegistrationNodeConfig:
 # the agent's own map is refused or kept as the agent node does; it answers no requests and
 # sends no coarse graphs
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
-                   MergeConfig, HealthConfig, AuthConfig,
+                   PoseConfig, MergeConfig, HealthConfig, AuthConfig,
                    skip=("dense_min_interval_s", "heartbeat_period_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
@@ -80,8 +82,9 @@ class RegistrationNode(SgregNode):
         self.discovery_timer = None
         if model is not None:
             agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
+            pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
             peers_cfg = PeersConfig(**pick(PeersConfig, p),
-                                    pipeline=PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p)))
+                                    pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
             if self.auth.keystore is None and peers_cfg.confirm_with_peer:
                 # unsigned, anyone could echo this agent's candidate back as the peer's verified
                 # link and skip the two-estimate rule: the peer's word counts only when signed

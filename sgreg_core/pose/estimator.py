@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..config import param
 from .clique import clique_pyramid
 from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
@@ -47,6 +48,12 @@ class PoseConfig:
                          footprint's one-cell margin away; verify.Footprint.core). 0 (all of
                          it) by default: 1 verifies more right poses of partial rooms, but
                          also more slides on floors of identical rooms (docs/VERDICT.md 7).
+    footprint_probe:     m; a source surface point counts in the footprint fitness only where
+                         the reference's footprint lies on both sides of it this far along its
+                         horizontal normal (verify.CloudVerifier): a wall along the edge of what
+                         the reference saw is no evidence either way. 0 (off) by default: on
+                         floors of identical rooms it verifies more slides too; on in the
+                         profile for sites without them (docs/VERDICT.md section 10).
     verify_max_points:   source points kept for verification (seeded random subsample).
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
@@ -69,6 +76,9 @@ class PoseConfig:
     verify_tau: float = 0.1
     footprint_cell: float = 0.2
     footprint_rim: int = 0
+    footprint_probe: float = param(0.0, "m; a surface of the peer's map counts against a pose only "
+                                   "where the own floor plan lies on both sides of it this far "
+                                   "(0: off; for sites without identical rooms)", 0.0, 2.0)
     verify_max_points: int = 1500
     icp: bool = False
     icp_max_iters: int = 20
@@ -79,6 +89,8 @@ class PoseConfig:
 
     def __post_init__(self):
         check_rim(self.footprint_rim)
+        if not 0.0 <= self.footprint_probe < np.inf:
+            raise ValueError(f"footprint_probe must be a distance >= 0 (m), got {self.footprint_probe!r}")
 
 
 @dataclass
@@ -424,4 +436,4 @@ def cloud_verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | Non
     if sc is None or rc is None:
         return None
     return CloudVerifier(sc, rc, cfg.verify_voxel, cfg.verify_tau, cfg.verify_max_points,
-                         cfg.seed, cfg.footprint_cell, cfg.footprint_rim)
+                         cfg.seed, cfg.footprint_cell, cfg.footprint_rim, cfg.footprint_probe)

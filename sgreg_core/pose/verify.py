@@ -12,6 +12,11 @@ fitness: the supported share of the source points that land on the reference's f
 (the floor plan it covers, a filled 2-D occupancy grid; optionally less its rim, see
 Footprint.core). Source points beyond what the reference saw are no evidence either way; source
 points inside it must be on its surfaces.
+With a footprint probe (CloudVerifier footprint_probe, m), a source surface point counts only
+where the footprint lies on both of its sides along its horizontal normal: a wall of the source
+along the edge of what the reference saw (the reference's floor reaches it, the wall itself was
+cut off or not mapped yet) is no evidence either way, while one standing inside the
+reference's floor plan, where the reference saw floor beyond it, still counts.
 Horizontal source surfaces (floor, ceiling, table tops; normal within ~30 degrees of vertical)
 are left out of every share: in gravity-aligned maps any yaw and horizontal shift keeps floor
 on floor, so they would support wrong poses as well as right ones. On held-out ScanNet views
@@ -143,13 +148,15 @@ class CloudVerifier:
     ref: a ReferenceCloud (reused as is) or an (M, 3) cloud (voxelised here with `voxel`);
     voxel: voxel size (m) of the source (and of a reference given as points); tau: support
     distance (m); max_src_points: the source is randomly subsampled (seeded) beyond this;
-    footprint_rim: the footprint fitness is counted on Footprint.core(footprint_rim).
+    footprint_rim: the footprint fitness is counted on Footprint.core(footprint_rim);
+    footprint_probe: m, and only at source points with footprint on both sides this far along
+    their horizontal normal (0: everywhere).
     `src` is the (subsampled) source used by ICP, `scored` its non-horizontal points.
     """
 
     def __init__(self, src: np.ndarray, ref: ReferenceCloud | np.ndarray, voxel: float = 0.05,
                  tau: float = 0.1, max_src_points: int = 5000, seed: int = 0,
-                 footprint_cell: float = 0.2, footprint_rim: int = 0):
+                 footprint_cell: float = 0.2, footprint_rim: int = 0, footprint_probe: float = 0.0):
         self.tau = float(tau)
         self.reference = ref if isinstance(ref, ReferenceCloud) else \
             ReferenceCloud(ref, voxel, footprint_cell)
@@ -159,11 +166,16 @@ class CloudVerifier:
                                                       replace=False)
             self.src = self.src[pick]
         self.scored = self.src
+        self.scored_normals = np.zeros((0, 3))
         if self.src.shape[0] >= 3:
             normals = estimate_normals(self.src, cKDTree(self.src))
-            self.scored = self.src[np.abs(normals[:, 2]) <= HORIZONTAL_NZ]
+            upright = np.abs(normals[:, 2]) <= HORIZONTAL_NZ
+            self.scored, self.scored_normals = self.src[upright], normals[upright]
         self.valid = self.scored.shape[0] >= 3 and self.reference.valid
         self.rim = check_rim(footprint_rim)
+        self.probe = float(footprint_probe)
+        if not 0.0 <= self.probe < np.inf:
+            raise ValueError(f"footprint probe must be a distance >= 0 (m), got {footprint_probe!r}")
 
     def __call__(self, T: np.ndarray) -> Verification:
         if not self.valid:
@@ -181,8 +193,21 @@ class CloudVerifier:
         rmse = float(np.sqrt(np.mean(dist[supported] ** 2))) if supported.any() else np.inf
         on_plan = ref.footprint.contains(moved)
         on_core = ref.footprint.contains(moved, self.rim) if self.rim else on_plan
+        if self.probe > 0:
+            on_core = on_core & self._two_sided(T, moved)
         return Verification(fitness=float(supported.mean()), overlap=float(near.mean()),
                             score=float(score.mean()), rmse=rmse,
                             footprint_share=float(on_plan.mean()),
                             footprint_fitness=float(supported[on_core].mean()) if on_core.any()
                             else 0.0)
+
+    def _two_sided(self, T: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """(N,) bool: the reference's footprint lies on both sides of each moved source surface
+        point, `probe` metres along its horizontal normal. A source wall along the edge of what
+        the reference saw (its floor reaches the wall, the wall itself was cut off or not yet
+        mapped) is no evidence either way; one standing inside the reference's floor plan is."""
+        n = self.scored_normals @ np.asarray(T, np.float64)[:3, :3].T
+        h = n[:, :2] / np.maximum(np.linalg.norm(n[:, :2], axis=1, keepdims=True), 1e-9)
+        step = np.c_[self.probe * h, np.zeros(len(h))]
+        fp = self.reference.footprint
+        return fp.contains(moved + step) & fp.contains(moved - step)

@@ -91,11 +91,17 @@ def test_set_overrides_the_pipeline_config(data, capsys):
     assert code == 1 and res["reason"] == "too_few_inliers"
     args = argparse.Namespace(coarse=False, no_icp=False, overrides=["pose.footprint_rim=1"])
     assert pipeline_config(args).pose_config().footprint_rim == 1
+    args.overrides = ["pose.footprint_probe=0.5"]
+    assert pipeline_config(args).pose_config().footprint_probe == 0.5
+    both = PipelineConfig().with_pose(footprint_probe=0.5)    # what the registration node sets
+    assert both.pose.footprint_probe == both.coarse_pose.footprint_probe == 0.5
+    assert both.pose.verify_voxel == PipelineConfig().pose.verify_voxel
     args.overrides = ["guided.enabled=false", "guided.min_objects=5"]
     assert not pipeline_config(args).guided.enabled and pipeline_config(args).guided.min_objects == 5
     args.overrides = ["repeats.enabled=false", "repeats.max_repeat=0.3"]
     assert not pipeline_config(args).repeats.enabled and pipeline_config(args).repeats.max_repeat == 0.3
     for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.footprint_rim=1.5",
+                "pose.footprint_probe=-0.5",
                 "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers", "guided.after=[ok]",
                 "repeats.after=[ambiguous, ok]", "repeats.min_confidence=2"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
