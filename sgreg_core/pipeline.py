@@ -122,7 +122,7 @@ class PipelineConfig:
 
     def with_pose(self, **changes) -> "PipelineConfig":
         """The same config with estimator settings (pose.PoseConfig) changed in both the dense
-        and the coarse pose configs."""
+        and the coarse pose configs (to the same value: only for settings both should share)."""
         return replace(self, pose=replace(self.pose, **changes),
                        coarse_pose=replace(self.coarse_pose, **changes))
 

@@ -20,7 +20,7 @@ from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
 from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
 from .verdict import Evidence, VerdictConfig, confidence, judge, support
-from .verify import CloudVerifier, ReferenceCloud, Verification, check_rim
+from .verify import CloudVerifier, ReferenceCloud, Verification, check_probe, check_rim
 
 
 @dataclass
@@ -51,7 +51,7 @@ class PoseConfig:
     footprint_probe:     m; a source surface point counts in the footprint fitness only where
                          the reference's footprint lies on both sides of it this far along its
                          horizontal normal (verify.CloudVerifier): a wall along the edge of what
-                         the reference saw is no evidence either way. 0 (off) by default: on
+                         the reference saw counts neither for nor against. 0 (off) by default: on
                          floors of identical rooms it verifies more slides too; on in the
                          profile for sites without them (docs/VERDICT.md section 10).
     verify_max_points:   source points kept for verification (seeded random subsample).
@@ -76,9 +76,9 @@ class PoseConfig:
     verify_tau: float = 0.1
     footprint_cell: float = 0.2
     footprint_rim: int = 0
-    footprint_probe: float = param(0.0, "m; a surface of the peer's map counts against a pose only "
-                                   "where the own floor plan lies on both sides of it this far "
-                                   "(0: off; for sites without identical rooms)", 0.0, 2.0)
+    footprint_probe: float = param(0.0, "m; a surface of the peer's map counts for or against a "
+                                   "pose only where the own floor plan lies on both sides of it "
+                                   "this far (0: off; for sites without identical rooms)", 0.0, 2.0)
     verify_max_points: int = 1500
     icp: bool = False
     icp_max_iters: int = 20
@@ -89,8 +89,7 @@ class PoseConfig:
 
     def __post_init__(self):
         check_rim(self.footprint_rim)
-        if not 0.0 <= self.footprint_probe < np.inf:
-            raise ValueError(f"footprint_probe must be a distance >= 0 (m), got {self.footprint_probe!r}")
+        check_probe(self.footprint_probe)
 
 
 @dataclass

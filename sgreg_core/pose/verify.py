@@ -76,6 +76,14 @@ def estimate_normals(pts: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
     return vecs[:, :, 0]
 
 
+def check_probe(probe) -> float:
+    """A footprint probe (m) as a float; ValueError unless a finite number >= 0."""
+    if isinstance(probe, bool) or not isinstance(probe, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= probe < np.inf:
+        raise ValueError(f"footprint probe must be a distance >= 0 (m), got {probe!r}")
+    return float(probe)
+
+
 def check_rim(rim) -> int:
     """A footprint rim (cells) as an int; ValueError unless a whole number >= 0."""
     if isinstance(rim, bool) or not isinstance(rim, (int, np.integer)) or rim < 0:
@@ -150,7 +158,10 @@ class CloudVerifier:
     distance (m); max_src_points: the source is randomly subsampled (seeded) beyond this;
     footprint_rim: the footprint fitness is counted on Footprint.core(footprint_rim);
     footprint_probe: m, and only at source points with footprint on both sides this far along
-    their horizontal normal (0: everywhere).
+    their horizontal normal (0: everywhere). Walls on the outer edge of the reference's plan
+    then count neither for nor against a pose, mapped or not: the fitness rests on what stands
+    inside the plan (furniture, inner walls), and a probe under two footprint cells changes
+    little, since the plan reaches a cell past its walls.
     `src` is the (subsampled) source used by ICP, `scored` its non-horizontal points.
     """
 
@@ -158,6 +169,7 @@ class CloudVerifier:
                  tau: float = 0.1, max_src_points: int = 5000, seed: int = 0,
                  footprint_cell: float = 0.2, footprint_rim: int = 0, footprint_probe: float = 0.0):
         self.tau = float(tau)
+        self.rim, self.probe = check_rim(footprint_rim), check_probe(footprint_probe)
         self.reference = ref if isinstance(ref, ReferenceCloud) else \
             ReferenceCloud(ref, voxel, footprint_cell)
         self.src = voxel_downsample(src, voxel)
@@ -165,17 +177,12 @@ class CloudVerifier:
             pick = np.random.default_rng(seed).choice(self.src.shape[0], max_src_points,
                                                       replace=False)
             self.src = self.src[pick]
-        self.scored = self.src
-        self.scored_normals = np.zeros((0, 3))
+        self.scored, self.scored_normals = self.src, np.zeros_like(self.src)
         if self.src.shape[0] >= 3:
             normals = estimate_normals(self.src, cKDTree(self.src))
             upright = np.abs(normals[:, 2]) <= HORIZONTAL_NZ
             self.scored, self.scored_normals = self.src[upright], normals[upright]
         self.valid = self.scored.shape[0] >= 3 and self.reference.valid
-        self.rim = check_rim(footprint_rim)
-        self.probe = float(footprint_probe)
-        if not 0.0 <= self.probe < np.inf:
-            raise ValueError(f"footprint probe must be a distance >= 0 (m), got {footprint_probe!r}")
 
     def __call__(self, T: np.ndarray) -> Verification:
         if not self.valid:
@@ -207,6 +214,8 @@ class CloudVerifier:
         the reference saw (its floor reaches the wall, the wall itself was cut off or not yet
         mapped) is no evidence either way; one standing inside the reference's floor plan is."""
         n = self.scored_normals @ np.asarray(T, np.float64)[:3, :3].T
+        # scored points are upright surfaces: their normals stay mostly horizontal unless T tilts
+        # them far, so the floor below only guards the division
         h = n[:, :2] / np.maximum(np.linalg.norm(n[:, :2], axis=1, keepdims=True), 1e-9)
         step = np.c_[self.probe * h, np.zeros(len(h))]
         fp = self.reference.footprint

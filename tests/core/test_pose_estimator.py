@@ -203,25 +203,34 @@ def test_a_wall_the_reference_never_saw_does_not_count_against_a_right_pose():
 def test_probe_leaves_out_a_wall_at_the_edge_of_what_the_reference_saw_only():
     """footprint_probe: a source surface counts only where the reference's footprint lies on
     both sides of it. The reference holds the floor up to the wall at x = 0.1 but not the
-    wall: at the right pose that wall is one-sided, left out, and the fitness is the rest's.
-    A partition the source has in the middle of the room (the reference saw floor on both
-    sides of it, and no wall) still counts against the pose, as does a pose a metre off."""
+    wall: at the right pose that wall is one-sided, left out, and the fitness is the rest's,
+    also when the source comes in its own, turned frame (its normals must turn with the
+    pose: probed along the wall, it would count). A
+    partition the source has in the middle of the room (the reference saw floor on both sides
+    of it, and no wall) still counts against the pose, as does a pose a metre off."""
     rng = np.random.default_rng(25)
     room = box_room(rng) + [0.1, 0.0, 0.0]
     seen = room[room[:, 0] > 0.3]
     fit = {p: CloudVerifier(room, seen, voxel=0.05, footprint_probe=p)(np.eye(4)).footprint_fitness
            for p in (0.0, 0.5)}
     assert fit[0.0] < fit[0.5] - 0.05 and fit[0.5] > 0.97
+    # the floor right up to the wall, and no wall; the source in a frame turned by 90 deg
+    floor_to_wall = room[~((room[:, 0] < 0.12) & (room[:, 2] > 0.02))]
+    T = make_T(yaw_rotation(np.radians(90.0)), [2.0, -1.0, 0.0])      # source frame -> room
+    turned = apply_T(np.linalg.inv(T), room)
+    assert CloudVerifier(turned, floor_to_wall, voxel=0.05)(T).footprint_fitness < 0.9
+    probed = CloudVerifier(turned, floor_to_wall, voxel=0.05, footprint_probe=0.5)
+    assert probed(T).footprint_fitness > 0.97
     partition = np.c_[np.full(800, 4.0), rng.uniform(1, 5, 800), rng.uniform(0, 3, 800)]
-    with_partition = CloudVerifier(np.concatenate([room, partition]), room, voxel=0.05,
-                                   footprint_probe=0.5)(np.eye(4))
-    assert with_partition.footprint_fitness < 0.9
+    inside = {p: CloudVerifier(np.concatenate([room, partition]), room, voxel=0.05,
+                               footprint_probe=p)(np.eye(4)).footprint_fitness for p in (0.0, 0.5)}
+    assert inside[0.5] < 0.9 and inside[0.5] <= inside[0.0]
     shifted = CloudVerifier(room, seen, voxel=0.05, footprint_probe=0.5)(make_T(np.eye(3), [1.0, 0.0, 0.0]))
     assert shifted.footprint_fitness < 0.5
     res = estimate_pose(*correspondences(rng, 300, 0.3, np.eye(4))[:2], src_cloud=room,
                         ref_cloud=ReferenceCloud(seen, 0.05, 0.2), cfg=PoseConfig(footprint_probe=0.5))
     assert res.footprint_fitness == pytest.approx(fit[0.5], abs=0.02)
-    for bad in (-0.5, float("nan")):
+    for bad in (-0.5, float("nan"), True):
         with pytest.raises(ValueError, match="probe"):
             PoseConfig(footprint_probe=bad)
         with pytest.raises(ValueError, match="probe"):
