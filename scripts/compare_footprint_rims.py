@@ -4,10 +4,10 @@
 
 For bench-register pairs of the given rooms (clean, noisy and frontend views), the fitness the
 verdict sees is computed at the true pose and at ten wrong ones (yaw 90/180/270 deg about the
-source's centre, slides of 0.8-1.5 m), for each rim and each footprint probe (m, 0: off; each
-combination of the two). Wrong poses that put less than the
-verdict's minimum footprint share on the reference's plan are left out (the verdict refuses
-them anyway). Prints a table and writes JSON. Choose on rooms seen in training only.
+source's centre, slides of 0.8-1.5 m), for each combination of rim and footprint probe (m, 0:
+off). Wrong poses that put less than the verdict's minimum footprint share on the reference's
+plan are left out (the verdict refuses them anyway). Prints a table and writes JSON. Choose on
+rooms seen in training only.
 
     python scripts/compare_footprint_rims.py --rooms scene0000 scene0001 scene0002 scene0003 \
         scene0004 --n 20 --rims 0 1 2 --probes 0 --out results/footprint_rims.json
@@ -75,8 +75,7 @@ def main() -> None:
 
     rows = []
     print(f"{'rim':>3} {'probe':>5} {'setting':9} {'right p10':>9} {'right p50':>9} "
-          f"{'wrong p50':>9} "
-          f"{'wrong p99':>9} {'wrong max':>9}  (n right / wrong)")
+          f"{'wrong p50':>9} {'wrong p99':>9} {'wrong max':>9}  (n right / wrong)")
     for rim, probe in combos:
         for s in SETTINGS:
             bucket = scores[rim, probe][s]

@@ -123,15 +123,15 @@ class PipelineConfig:
     def with_pose(self, **changes) -> "PipelineConfig":
         """The same config with estimator settings (pose.PoseConfig) changed in both the dense
         and the coarse pose configs (to the same value: only for settings both should share)."""
-        return replace(self, pose=replace(self.pose, **changes),
-                       coarse_pose=replace(self.coarse_pose, **changes))
+        return self._each_pose(lambda pose: replace(pose, **changes))
 
     def with_verdict(self, **changes) -> "PipelineConfig":
         """The same config with verdict settings (pose/verdict.VerdictConfig) changed in both
-        the dense and the coarse pose configs."""
-        return replace(self, pose=replace(self.pose, verdict=replace(self.pose.verdict, **changes)),
-                       coarse_pose=replace(self.coarse_pose,
-                                           verdict=replace(self.coarse_pose.verdict, **changes)))
+        the dense and the coarse pose configs (each keeps its other verdict settings)."""
+        return self._each_pose(lambda pose: replace(pose, verdict=replace(pose.verdict, **changes)))
+
+    def _each_pose(self, change) -> "PipelineConfig":
+        return replace(self, pose=change(self.pose), coarse_pose=change(self.coarse_pose))
 
 
 @dataclass

@@ -204,10 +204,10 @@ def test_probe_leaves_out_a_wall_at_the_edge_of_what_the_reference_saw_only():
     """footprint_probe: a source surface counts only where the reference's footprint lies on
     both sides of it. The reference holds the floor up to the wall at x = 0.1 but not the
     wall: at the right pose that wall is one-sided, left out, and the fitness is the rest's,
-    also when the source comes in its own, turned frame (its normals must turn with the
-    pose: probed along the wall, it would count). A
-    partition the source has in the middle of the room (the reference saw floor on both sides
-    of it, and no wall) still counts against the pose, as does a pose a metre off."""
+    also when the source comes in its own, turned frame (its normals must turn with the pose:
+    probed along the wall, it would count). A partition the source has in the middle of the
+    room (the reference saw floor on both sides of it, and no wall) still counts against the
+    pose, as does a pose a metre off."""
     rng = np.random.default_rng(25)
     room = box_room(rng) + [0.1, 0.0, 0.0]
     seen = room[room[:, 0] > 0.3]
