@@ -58,6 +58,10 @@ from .types import InstanceMap, SceneGraph
 
 MODES = ("dense", "coarse")   # what PipelineConfig.mode asks for; "merged" = coarse + kept
 ICP_MODES = ("never", "coarse", "always")
+# refusals of a coarse estimate that mean its pose is likely wrong, not only short of trust:
+# worth trying the poses two node-center matches fix (PipelineConfig.coarse_pairs); a tie and
+# a confidence short of the bar stand, as those gates are there for identical rooms
+COARSE_PAIRS_AFTER = ("too_few_inliers", "too_few_objects", "degenerate_geometry", "verification_failed")
 # level: gravity of both maps; graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
 # (label embeddings, node point sampling, shape + point features, GNN); node_match /
 # point_match: matching; pose: estimation, verification and ICP; total: the whole call.
@@ -97,6 +101,12 @@ class PipelineConfig:
     min_nodes:      graphs with fewer nodes are not registered (reason "too_few_nodes").
     guided:         guided point matching when a dense estimate with clouds fails
                     (pose/guided.py).
+    coarse_pairs:   when a coarse estimate from node centers alone (no kept correspondences)
+                    with clouds is refused for one of COARSE_PAIRS_AFTER, it is estimated again
+                    with this many poses that two node-center matches fix among its candidates
+                    (PoseConfig.pair_hypotheses), and taken if it passes; 0: off. Early, small
+                    maps share four or five objects, and a wrong clique of centers hides the
+                    right one (docs/VERDICT.md section 11).
     repeats:        look-alike placements of the source graph in the reference, and the
                     gates for maps that do not repeat it (pose/repeats.py)."""
 
@@ -108,9 +118,12 @@ class PipelineConfig:
     icp: str = "always"
     min_nodes: int = 3
     guided: GuidedConfig = field(default_factory=GuidedConfig)
+    coarse_pairs: int = 8
     repeats: RepeatConfig = field(default_factory=RepeatConfig)
 
     def __post_init__(self):
+        if self.coarse_pairs < 0:
+            raise ValueError(f"coarse_pairs must be >= 0, got {self.coarse_pairs}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.icp not in ICP_MODES:
@@ -394,6 +407,14 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
             if out.repeat < cfg.repeats.max_repeat:   # NaN (cannot be told) is not below
                 res, out.unrepeated = third, True
         pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
+    if (out.mode == "coarse" and cfg.coarse_pairs and res.reason in COARSE_PAIRS_AFTER
+            and src_cloud is not None and ref_cloud is not None):
+        t_pairs = time.perf_counter()
+        second = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
+                               replace(pose_cfg, pair_hypotheses=cfg.coarse_pairs), groups=groups)
+        if second.success:
+            res = second
+        pose_ms["pairs"] = 1e3 * (time.perf_counter() - t_pairs)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.T_levelled = res.T
@@ -436,7 +457,8 @@ def _guided_estimate(src_feats: NodeFeatures, ref_feats: NodeFeatures, nodes, sr
     both = learned
     for c in guided:
         both = Correspondences.concat(both, c)
-    verdict = replace(pose_cfg.verdict, min_objects=max(pose_cfg.verdict.min_objects, gcfg.min_objects))
+    verdict = replace(pose_cfg.verdict, min_objects=max(pose_cfg.verdict.min_objects, gcfg.min_objects),
+                      competitor_min_fitness=gcfg.competitor_min_fitness)
     res = estimate_pose(both.src_xyz, both.ref_xyz, both.score, src_cloud, ref_cloud,
                         replace(pose_cfg, nms_radius=0.0, verdict=verdict), groups=both.groups())
     return res, both, len(both) - len(learned)

@@ -18,6 +18,7 @@ from ..config import param
 from .clique import clique_pyramid
 from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
+from .pairs import pair_poses
 from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
 from .verdict import Evidence, VerdictConfig, confidence, judge, support
 from .verify import CloudVerifier, ReferenceCloud, Verification, check_probe, check_rim
@@ -55,6 +56,10 @@ class PoseConfig:
                          floors of identical rooms it verifies more slides too; on in the
                          profile for sites without them (docs/VERDICT.md section 10).
     verify_max_points:   source points kept for verification (seeded random subsample).
+    pair_hypotheses:     also this many of the poses that two correspondences fix (yaw and
+                         translation; pose/pairs.py), the best supported, are candidates; 0:
+                         none. For node centers of levelled maps: with a few right node matches
+                         among many, the largest clique is often a wrong one.
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
     icp_max_iters:       ICP iterations.
@@ -80,6 +85,7 @@ class PoseConfig:
                                    "pose only where the own floor plan lies on both sides of it "
                                    "this far (0: off; for sites without identical rooms)", 0.0, 2.0)
     verify_max_points: int = 1500
+    pair_hypotheses: int = 0
     icp: bool = False
     icp_max_iters: int = 20
     icp_distance: float = 0.1
@@ -90,6 +96,8 @@ class PoseConfig:
     def __post_init__(self):
         check_rim(self.footprint_rim)
         check_probe(self.footprint_probe)
+        if self.pair_hypotheses < 0:
+            raise ValueError(f"pair_hypotheses must be >= 0, got {self.pair_hypotheses}")
 
 
 @dataclass
@@ -250,6 +258,8 @@ def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult
         result.reason = gnc.reason
         return []
     candidates = [gnc.T]
+    if cfg.pair_hypotheses:
+        candidates += pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers, cfg.pair_hypotheses)
     if gnc.inlier_ratio < cfg.gnc_inlier_gate:
         result.used_pyramid = True
         levels = _clique_pyramid(s, r, b, w, cfg.clique_deltas, cfg)

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .estimator import PoseConfig, far_apart, pose_hypotheses, refine_icp_coarse_to_fine
+from .pairs import pair_poses
 from .solvers import apply_T
 from .verdict import REASONS, VerdictConfig
 from .verify import CloudVerifier
@@ -45,6 +46,15 @@ class GuidedConfig:
                        whatever PipelineConfig.icp says: without it a center pose pairs nothing).
     poses:             guided matches are made at this many far-apart center poses, the best
                        verified first (two let a near-tie show as a competitor).
+    pair_poses:        besides the clique pyramid's poses, the best verified of every yaw-and-
+                       translation pose that two node-center matches fix (maps are levelled),
+                       with at least min_pair_support centers agreeing, this many, are refined
+                       and ranked too; 0: off. With three or four right node matches among a
+                       dozen, the largest clique of centers is often a wrong one, while the right
+                       pose is among the pairs' and the clouds rank it first (docs/VERDICT.md
+                       section 11).
+    min_pair_support:  node-center matches within center_bound a pair's pose needs (its own two
+                       included).
     verify_max_points: source points of the clouds the center hypotheses are refined and
                        ranked on (fewer than the verdict's: ICP from a metre off is most of
                        the cost of guided matching, and ranking needs no more).
@@ -59,19 +69,28 @@ class GuidedConfig:
                        stands.
     min_objects:       inlier objects a guided estimate needs: its pairs are made at the pose,
                        so each object is weaker evidence than a learned match (with 3, a wrong
-                       pose of a one-object overlap was verified in the real suite)."""
+                       pose of a one-object overlap was verified in the real suite).
+    competitor_min_fitness: VerdictConfig.competitor_min_fitness of a guided estimate. Its
+                       competitors come from the learned point matches, which had already failed
+                       to support any pose (that is when guided matching runs): where a front
+                       end merged, cut or confused the objects, a handful of wrong node matches
+                       agree on a pose the clouds refute, and counting it as a tie refused right
+                       poses at fitness 0.9 and more (docs/VERDICT.md section 11)."""
 
     enabled: bool = True
     center_bound: float = 0.3
     clique_deltas: tuple[float, ...] = (0.2, 0.4, 0.8)
     icp_distances: tuple[float, ...] = (0.5, 0.25, 0.1)
     poses: int = 2
+    pair_poses: int = 3
+    min_pair_support: int = 3
     verify_max_points: int = 600
     icp_max_iters: int = 10
     radius: float = 0.1
     after: tuple[str, ...] = ("too_few_correspondences", "too_few_inliers", "too_few_objects",
                               "degenerate_geometry")
     min_objects: int = 4
+    competitor_min_fitness: float = 0.5
 
     def __post_init__(self):
         bad = [r for r in self.after if r not in REFUSALS]
@@ -81,10 +100,12 @@ class GuidedConfig:
                 and self.verify_max_points >= 3 and self.icp_max_iters >= 1
                 and len(self.icp_distances) and min(self.icp_distances) > 0
                 and len(self.clique_deltas) and min(self.clique_deltas) > 0
-                and self.min_objects >= 1):
+                and self.min_objects >= 1 and self.pair_poses >= 0 and self.min_pair_support >= 2
+                and 0.0 <= self.competitor_min_fitness <= 1.0):
             raise ValueError("guided: center_bound, radius, icp_distances and clique_deltas must be "
                              "> 0 (and given), poses, icp_max_iters and min_objects >= 1, "
-                             "verify_max_points >= 3")
+                             "verify_max_points >= 3, "
+                             "pair_poses >= 0, min_pair_support >= 2, competitor_min_fitness in [0, 1]")
 
 
 def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.ndarray,
@@ -103,8 +124,13 @@ def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.nd
     # the pyramid always runs: GNC over few centers, most of them wrong, finds one pose at most
     hyp_cfg = replace(pose_cfg, clique_deltas=cfg.clique_deltas, gnc_inlier_gate=np.inf)
     bounds = np.full(src.shape[0], cfg.center_bound)
+    hypotheses = pose_hypotheses(src, ref, w, bounds, hyp_cfg)
+    pairs = pair_poses(src, ref, cfg.center_bound, cfg.min_pair_support) if cfg.pair_poses else []
+    if pairs:
+        rank = np.argsort([-verifier(T).score for T in pairs], kind="stable")
+        hypotheses += [pairs[i] for i in rank[: cfg.pair_poses]]
     scored, seen = [], []
-    for T in pose_hypotheses(src, ref, w, bounds, hyp_cfg):
+    for T in hypotheses:
         if any(not far_apart(T, S, _SAME) for S in seen):   # cliques often repeat a pose
             continue
         seen.append(T)

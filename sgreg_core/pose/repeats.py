@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .estimator import PoseConfig, refine_icp_coarse_to_fine
+from .pairs import placement_support, yaw_hypotheses
 from .verdict import REASONS
 from .verify import CloudVerifier, check_rim
 
@@ -130,20 +131,6 @@ def _unit(desc: np.ndarray) -> np.ndarray:
     return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
 
 
-def _supports(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
-              bound: float) -> np.ndarray:
-    """(H,) source nodes within `bound` of one of their look-alikes under each (R[h], t[h]).
-    src (n, 3), alike (n, k, 3). In blocks of hypotheses, so that a large graph stays within
-    a few tens of MB."""
-    block = max(1, 2_000_000 // max(1, alike.shape[0] * alike.shape[1]))
-    out = np.zeros(R.shape[0], np.int64)
-    for a in range(0, R.shape[0], block):
-        moved = np.einsum("hij,nj->hni", R[a:a + block], src) + t[a:a + block, None, :]
-        d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)      # (h, n, k)
-        out[a:a + block] = (d.min(-1) <= bound).sum(-1)
-    return out
-
-
 def _far(R_a, t_a, R_b, t_b, centroid: np.ndarray, cfg: RepeatConfig) -> np.ndarray:
     """Placements a (R_a (H, 3, 3), t_a (H, 3)) far from b (broadcast): they put the source's
     centroid at least competitor_m apart, or differ by competitor_deg of rotation. Measured at
@@ -152,40 +139,6 @@ def _far(R_a, t_a, R_b, t_b, centroid: np.ndarray, cfg: RepeatConfig) -> np.ndar
     rel = np.einsum("...ji,...jk->...ik", R_b, R_a)
     turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
     return (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
-
-
-def _pairs(m: int, cfg: RepeatConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs i < j of m look-alike pairs: all of them, or a seeded sample when there are
-    many more than max_hypotheses (the full list of a large graph would not fit in memory)."""
-    total = m * (m - 1) // 2
-    if total <= 8 * cfg.max_hypotheses:
-        return np.triu_indices(m, k=1)
-    a, b = np.random.default_rng(cfg.seed).integers(0, m, (2, 8 * cfg.max_hypotheses))
-    keep = a != b
-    return np.minimum(a, b)[keep], np.maximum(a, b)[keep]
-
-
-def _pair_poses(src: np.ndarray, ref: np.ndarray, node: np.ndarray, cfg: RepeatConfig):
-    """Yaw + translation of two look-alike pairs (src[i] -> ref[i]) of two different source
-    nodes, both pairs at least min_pair_m apart horizontally and their lengths agreeing within
-    2 bounds; a seeded subset beyond max_hypotheses."""
-    i, j = _pairs(src.shape[0], cfg)
-    ds, dr = src[j] - src[i], ref[j] - ref[i]
-    ls, lr = np.linalg.norm(ds[:, :2], axis=1), np.linalg.norm(dr[:, :2], axis=1)
-    ok = ((node[i] != node[j]) & (ls >= cfg.min_pair_m) & (lr >= cfg.min_pair_m)
-          & (np.abs(ls - lr) <= 2 * cfg.bound) & (np.abs(ds[:, 2] - dr[:, 2]) <= 2 * cfg.bound))
-    i, j, ds, dr = i[ok], j[ok], ds[ok], dr[ok]
-    if i.size > cfg.max_hypotheses:
-        pick = np.sort(np.random.default_rng(cfg.seed).choice(i.size, cfg.max_hypotheses,
-                                                              replace=False))
-        i, j, ds, dr = i[pick], j[pick], ds[pick], dr[pick]
-    yaw = np.arctan2(dr[:, 1], dr[:, 0]) - np.arctan2(ds[:, 1], ds[:, 0])
-    c, s = np.cos(yaw), np.sin(yaw)
-    R = np.zeros((yaw.size, 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
-    mid_s, mid_r = 0.5 * (src[i] + src[j]), 0.5 * (ref[i] + ref[j])
-    t = mid_r - np.einsum("hij,hj->hi", R, mid_s)
-    return R, t
 
 
 def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
@@ -207,16 +160,17 @@ def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
     sim = _unit(sd) @ _unit(rd).T
     top = np.argsort(-sim, axis=1, kind="stable")[:, :k]                       # (n, k)
     alike = ref[top]                                                          # (n, k, 3)
-    out = Placements(support=int(_supports(T[None, :3, :3], T[None, :3, 3], src, alike,
+    out = Placements(support=int(placement_support(T[None, :3, :3], T[None, :3, 3], src, alike,
                                            cfg.bound)[0]), centroid=src.mean(0))
     node = np.repeat(np.arange(src.shape[0]), k)
-    R, t = _pair_poses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg)
+    R, t = yaw_hypotheses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg.bound,
+                          cfg.min_pair_m, cfg.max_hypotheses, cfg.seed)
     far = _far(R, t, T[:3, :3], T[:3, 3], out.centroid, cfg)
     R, t = R[far], t[far]
     out.hypotheses = int(R.shape[0])
     if not out.hypotheses:
         return out
-    sup = _supports(R, t, src, alike, cfg.bound)
+    sup = placement_support(R, t, src, alike, cfg.bound)
     # the best of each cell of half the competitor distance (placed centroid, yaw): thousands of
     # hypotheses are a few hundred placements
     order = np.argsort(-sup, kind="stable")

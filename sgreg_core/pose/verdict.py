@@ -49,6 +49,11 @@ class VerdictConfig:
                             a pose that puts the views side by side proves nothing.
     max_ambiguity:          refuse when the best competitor's support reaches this share of the
                             winner's (support: inlier objects x footprint fitness).
+    competitor_min_fitness: a near-tie is refused only when the competitor's footprint fitness
+                            reaches this: one the clouds refute is no tie, however many node
+                            matches agree on it (its ambiguity still lowers the confidence).
+                            0 (every near-tie refused) by default; guided estimates use
+                            GuidedConfig's (docs/VERDICT.md section 11).
     min_confidence:         an estimate checked against clouds needs at least this confidence.
     competitor_m, competitor_deg: a hypothesis is a competitor when it is at least this far
                             from the winner (translation, rotation).
@@ -67,6 +72,7 @@ class VerdictConfig:
                                "footprint that must lie on own surfaces to verify", 0.05, 1.0)
     min_footprint_share: float = 0.2
     max_ambiguity: float = 0.5
+    competitor_min_fitness: float = 0.0
     min_confidence: float = param(0.9, "an estimate checked against clouds needs at least this "
                                   "confidence (P(right | evidence))", 0.0, 1.0)
     competitor_m: float = 1.0
@@ -104,7 +110,8 @@ def judge(ev: Evidence, cfg: VerdictConfig, have_clouds: bool) -> str:
     if have_clouds and not (ev.fitness >= cfg.min_fitness
                             and ev.footprint_share >= cfg.min_footprint_share):
         return "verification_failed"
-    if ev.ambiguity >= cfg.max_ambiguity:
+    # a competitor the clouds refute is no tie (NaN fitness, without clouds, is not below)
+    if ev.ambiguity >= cfg.max_ambiguity and not ev.competitor_fitness < cfg.competitor_min_fitness:
         return "ambiguous"
     if have_clouds and confidence(ev, cfg) < cfg.min_confidence:
         return "low_confidence"

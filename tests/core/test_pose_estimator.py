@@ -1,6 +1,7 @@
 """End-to-end behaviour of sgreg_core.pose.estimate_pose: accuracy under outliers, verdicts on
 degenerate or unrelated inputs, 4-DoF mode, verification on clouds."""
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ import pytest
 from sgreg_cli.main import main
 from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
                              make_T, yaw_rotation)
+from sgreg_core.pose.verdict import Evidence, VerdictConfig, judge, support
 
 ROOM = np.array([8.0, 6.0, 3.0])
 
@@ -350,6 +352,21 @@ def test_near_tie_between_two_hypotheses_is_refused(rival_objects, reason):
     assert res.reason == reason, res.evidence
     assert res.evidence.objects == 5 and res.evidence.competitor_objects == rival_objects
     assert pose_error(res.T, T1)[0] < 0.05 and pose_error(res.T_competitor, T2)[0] < 0.05
+
+
+def test_a_near_tie_with_a_competitor_the_clouds_refute_is_refused_only_by_default():
+    """Seven wrong node matches agreeing on a pose that the clouds refute (fitness 0.3) against
+    four right ones at fitness 0.95: a tie by object count, no tie once the competitor must be
+    plausible; a competitor with no clouds to refute it (NaN) always counts."""
+    ev = Evidence(inliers=120, inlier_ratio=0.3, objects=4, spread=0.4, fitness=0.95,
+                  footprint_share=0.6, competitor_objects=7, competitor_fitness=0.3)
+    ev.ambiguity = support(7, 0.3) / support(4, 0.95)
+    assert ev.ambiguity > VerdictConfig().max_ambiguity
+    assert judge(ev, VerdictConfig(), have_clouds=True) == "ambiguous"
+    lenient = VerdictConfig(competitor_min_fitness=0.5)
+    assert judge(ev, lenient, have_clouds=True) == "ok"
+    assert judge(replace(ev, competitor_fitness=0.6), lenient, have_clouds=True) == "ambiguous"
+    assert judge(replace(ev, competitor_fitness=float("nan")), lenient, have_clouds=False) == "ambiguous"
 
 
 def test_inliers_from_too_few_objects_are_refused():
