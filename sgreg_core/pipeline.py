@@ -61,7 +61,8 @@ ICP_MODES = ("never", "coarse", "always")
 # refusals of a coarse estimate that mean its pose is likely wrong, not only short of trust:
 # worth trying the poses two node-center matches fix (PipelineConfig.coarse_pairs); a tie and
 # a confidence short of the bar stand, as those gates are there for identical rooms
-COARSE_PAIRS_AFTER = ("too_few_inliers", "too_few_objects", "degenerate_geometry", "verification_failed")
+COARSE_PAIRS_AFTER = ("too_few_inliers", "too_few_objects", "degenerate_geometry",
+                      "verification_failed")
 # level: gravity of both maps; graph: scene graphs of both maps; text / sample / shape / gnn: encoding of both graphs
 # (label embeddings, node point sampling, shape + point features, GNN); node_match /
 # point_match: matching; pose: estimation, verification and ICP; total: the whole call.
@@ -377,7 +378,8 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     pose_cfg = cfg.pose_config()
     dense_clouds = cfg.mode == "dense" and src_cloud is not None and ref_cloud is not None
     guided_on = cfg.guided.enabled and dense_clouds
-    second_pass = guided_on or (cfg.repeats.enabled and dense_clouds)
+    second_pass = (guided_on or (cfg.repeats.enabled and dense_clouds)
+                   or (cfg.mode == "coarse" and cfg.coarse_pairs > 0 and src_cloud is not None))
     if second_pass and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
         # one reference for every pass: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)

@@ -58,8 +58,9 @@ class PoseConfig:
     verify_max_points:   source points kept for verification (seeded random subsample).
     pair_hypotheses:     also this many of the poses that two correspondences fix (yaw and
                          translation; pose/pairs.py), the best supported, are candidates; 0:
-                         none. For node centers of levelled maps: with a few right node matches
-                         among many, the largest clique is often a wrong one.
+                         none. For node centers of levelled maps only (each center its own
+                         object): with a few right node matches among many, the largest clique
+                         is often a wrong one.
     icp:                 refine the winner with point-to-plane ICP on the verification clouds;
                          T is the refinement when the clouds support it at least as well.
     icp_max_iters:       ICP iterations.
@@ -259,7 +260,8 @@ def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult
         return []
     candidates = [gnc.T]
     if cfg.pair_hypotheses:
-        candidates += pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers, cfg.pair_hypotheses)
+        candidates += pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers,
+                                 cfg.pair_hypotheses)
     if gnc.inlier_ratio < cfg.gnc_inlier_gate:
         result.used_pyramid = True
         levels = _clique_pyramid(s, r, b, w, cfg.clique_deltas, cfg)

@@ -46,13 +46,11 @@ class GuidedConfig:
                        whatever PipelineConfig.icp says: without it a center pose pairs nothing).
     poses:             guided matches are made at this many far-apart center poses, the best
                        verified first (two let a near-tie show as a competitor).
-    pair_poses:        besides the clique pyramid's poses, the best verified of every yaw-and-
-                       translation pose that two node-center matches fix (maps are levelled),
-                       with at least min_pair_support centers agreeing, this many, are refined
-                       and ranked too; 0: off. With three or four right node matches among a
-                       dozen, the largest clique of centers is often a wrong one, while the right
-                       pose is among the pairs' and the clouds rank it first (docs/VERDICT.md
-                       section 11).
+    pair_poses:        the poses two center matches fix (pose/pairs.py; the 24 best supported,
+                       with at least min_pair_support centers within center_bound) are ranked
+                       on the clouds, and this many are added to the clique poses; 0: off. With
+                       three or four right node matches among a dozen, the largest clique of
+                       centers is often a wrong one (docs/VERDICT.md section 11).
     min_pair_support:  node-center matches within center_bound a pair's pose needs (its own two
                        included).
     verify_max_points: source points of the clouds the center hypotheses are refined and

@@ -9,12 +9,14 @@ on its look-alikes (pose/repeats.py).
 
 Public API:
     yaw_hypotheses(src, ref, node, bound, min_pair_m, max_hypotheses, seed) -> (R, t)
-    placement_support(R, t, src, alike, bound) -> (H,) matches each pose brings within bound
+    landed(R, t, src, alike, bound) -> (H, n) which matches each pose brings within bound
+    placement_support(R, t, src, alike, bound) -> (H,) how many
     pair_poses(src, ref, bound, min_support, limit) -> [T], the best supported, one per consensus
 """
 from __future__ import annotations
 
 import numpy as np
+
 
 def _pairs(m: int, max_hypotheses: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs i < j of m matches: all of them, or a seeded sample when there are many
@@ -51,34 +53,29 @@ def yaw_hypotheses(src: np.ndarray, ref: np.ndarray, node: np.ndarray, bound: fl
     return R, t
 
 
-def placement_support(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
-                      bound: float) -> np.ndarray:
-    """(H,) source points within `bound` of one of their candidates under each (R[h], t[h]).
-    src (n, 3), alike (n, k, 3). In blocks of hypotheses, so that a large graph stays within
-    a few tens of MB."""
+def landed(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
+           bound: float) -> np.ndarray:
+    """(H, n) bool: source point i lands within `bound` of one of its candidates alike[i]
+    under (R[h], t[h]). src (n, 3), alike (n, k, 3). In blocks of hypotheses, so that the
+    temporaries stay near 100 MB however many there are."""
     block = max(1, 2_000_000 // max(1, alike.shape[0] * alike.shape[1]))
-    out = np.zeros(R.shape[0], np.int64)
-    for a in range(0, R.shape[0], block):
-        moved = np.einsum("hij,nj->hni", R[a:a + block], src) + t[a:a + block, None, :]
-        d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)      # (h, n, k)
-        out[a:a + block] = (d.min(-1) <= bound).sum(-1)
-    return out
-
-
-def _inliers(R: np.ndarray, t: np.ndarray, src: np.ndarray, ref: np.ndarray,
-             bound: float) -> np.ndarray:
-    """(H, n) bool: match i lands within bound of its reference under (R[h], t[h]); in blocks
-    of hypotheses, as placement_support."""
-    block = max(1, 2_000_000 // max(1, src.shape[0]))
     out = np.zeros((R.shape[0], src.shape[0]), bool)
     for a in range(0, R.shape[0], block):
         moved = np.einsum("hij,nj->hni", R[a:a + block], src) + t[a:a + block, None, :]
-        out[a:a + block] = np.linalg.norm(moved - ref[None], axis=-1) <= bound
+        d = np.linalg.norm(moved[:, :, None, :] - alike[None], axis=-1)      # (h, n, k)
+        out[a:a + block] = d.min(-1) <= bound
     return out
 
 
+def placement_support(R: np.ndarray, t: np.ndarray, src: np.ndarray, alike: np.ndarray,
+                      bound: float) -> np.ndarray:
+    """(H,) source points within `bound` of one of their candidates under each (R[h], t[h])."""
+    return landed(R, t, src, alike, bound).sum(1)
+
+
 def pair_poses(src: np.ndarray, ref: np.ndarray, bound: float, min_support: int,
-               limit: int = 24, min_pair_m: float = 0.5, max_hypotheses: int = 4000) -> list[np.ndarray]:
+               limit: int = 24, min_pair_m: float = 0.5,
+               max_hypotheses: int = 4000) -> list[np.ndarray]:
     """The poses two matches (src[i] -> ref[i]) fix that bring at least min_support matches
     within bound: at most `limit`, the best supported first, one per set of matches it brings
     there (every pair of one consensus fixes nearly the same pose; without this, the pairs of
@@ -89,7 +86,7 @@ def pair_poses(src: np.ndarray, ref: np.ndarray, bound: float, min_support: int,
     if n < 2 or limit < 1:
         return []
     R, t = yaw_hypotheses(src, ref, np.arange(n), bound, min_pair_m, max_hypotheses)
-    inl = _inliers(R, t, src, ref, bound)
+    inl = landed(R, t, src, ref[:, None], bound)
     support = inl.sum(1)
     order = np.argsort(-support, kind="stable")
     order = order[support[order] >= min_support]

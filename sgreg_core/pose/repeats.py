@@ -161,7 +161,7 @@ def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
     top = np.argsort(-sim, axis=1, kind="stable")[:, :k]                       # (n, k)
     alike = ref[top]                                                          # (n, k, 3)
     out = Placements(support=int(placement_support(T[None, :3, :3], T[None, :3, 3], src, alike,
-                                           cfg.bound)[0]), centroid=src.mean(0))
+                                                   cfg.bound)[0]), centroid=src.mean(0))
     node = np.repeat(np.arange(src.shape[0]), k)
     R, t = yaw_hypotheses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg.bound,
                           cfg.min_pair_m, cfg.max_hypotheses, cfg.seed)

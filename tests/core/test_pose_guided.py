@@ -166,6 +166,32 @@ def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching()
     assert not bad.success and not bad.guided and "guided" in bad.pose_timing_ms
 
 
+def test_only_the_guided_estimate_waives_ties_with_competitors_the_clouds_refute(monkeypatch):
+    """The learned estimate refuses every near-tie; the guided one only those whose competitor
+    reaches GuidedConfig.competitor_min_fitness (the wiring of the rule, pose/verdict.py)."""
+    import sgreg_core.pipeline as pipeline
+    rng = np.random.default_rng(2)
+    room, objects, ctr = room_objects(rng)
+    T = make_T(yaw_rotation(2.5), np.array([5.0, 1.0, 0.0]))
+    src = features(sample(rng, objects), ctr + rng.normal(0, 0.15, ctr.shape))
+    ref_pts = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(objects.shape[0], K, 3)
+    ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
+    seen, estimate = [], pipeline.estimate_pose
+
+    def recording(*args, **kwargs):
+        seen.append((args[5] if len(args) > 5 else kwargs["cfg"]).verdict)
+        return estimate(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "estimate_pose", recording)
+    cfg = replace(PipelineConfig(), guided=GuidedConfig(competitor_min_fitness=0.7))
+    reg = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
+                            apply_T(T, room), cfg)
+    assert reg.guided and len(seen) == 2
+    assert seen[0].competitor_min_fitness == 0.0 and seen[1].competitor_min_fitness == 0.7
+    with pytest.raises(ValueError):
+        GuidedConfig(competitor_min_fitness=1.5)
+
+
 def test_an_estimate_that_passes_is_left_alone():
     rng = np.random.default_rng(6)
     room, objects, ctr = room_objects(rng)
