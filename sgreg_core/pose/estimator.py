@@ -260,8 +260,9 @@ def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult
         return []
     candidates = [gnc.T]
     if cfg.pair_hypotheses:
-        candidates += pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers,
-                                 cfg.pair_hypotheses)
+        candidates += [_refine(s, r, w, b, T, cfg.dof) for T in
+                       pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers,
+                                  cfg.pair_hypotheses)]
     if gnc.inlier_ratio < cfg.gnc_inlier_gate:
         result.used_pyramid = True
         levels = _clique_pyramid(s, r, b, w, cfg.clique_deltas, cfg)

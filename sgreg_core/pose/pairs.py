@@ -77,9 +77,10 @@ def pair_poses(src: np.ndarray, ref: np.ndarray, bound: float, min_support: int,
                limit: int = 24, min_pair_m: float = 0.5,
                max_hypotheses: int = 4000) -> list[np.ndarray]:
     """The poses two matches (src[i] -> ref[i]) fix that bring at least min_support matches
-    within bound: at most `limit`, the best supported first, one per set of matches it brings
-    there (every pair of one consensus fixes nearly the same pose; without this, the pairs of
-    the largest consensus would take every place)."""
+    within bound: at most `limit`, the best supported first, one per consensus: a pose whose
+    set of matches within bound lies within a better supported pose's set is left out (every
+    pair of one consensus fixes nearly the same pose; without this, the pairs of the largest
+    consensus would take every place)."""
     src = np.asarray(src, np.float64).reshape(-1, 3)
     ref = np.asarray(ref, np.float64).reshape(-1, 3)
     n = src.shape[0]
@@ -91,8 +92,16 @@ def pair_poses(src: np.ndarray, ref: np.ndarray, bound: float, min_support: int,
     order = np.argsort(-support, kind="stable")
     order = order[support[order] >= min_support]
     _, first = np.unique(inl[order], axis=0, return_index=True)
+    kept: list[int] = []
+    for h in order[np.sort(first)]:
+        if len(kept) == limit:
+            break
+        # a set within a better supported one is that consensus seen through noisier pairs
+        if kept and (~(inl[h] & ~inl[kept]).any(1)).any():
+            continue
+        kept.append(int(h))
     out = []
-    for h in order[np.sort(first)][:limit]:
+    for h in kept:
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R[h], t[h]
         out.append(T)

@@ -51,6 +51,14 @@ def test_pair_poses_rank_by_support_and_keep_each_pose_once():
     assert pair_poses(src[:1], ref[:1], 0.3, 2) == []
 
 
+def test_a_noisy_consensus_takes_one_place_only():
+    """Centers 10 cm off: the wrong five's pairs bring different subsets of them within the
+    bound; those are one consensus, so the right pose still gets the second place."""
+    *_, src, ref, T = hidden_truth(2, noise=0.1)
+    poses = pair_poses(src, ref, 0.3, 3, limit=2)
+    assert len(poses) == 2 and pose_error(poses[0], T)[0] > 1.0 and pose_error(poses[1], T)[0] < 0.3
+
+
 def test_pair_hypotheses_let_the_clouds_pick_the_right_pose_of_three_center_matches():
     room, room_T, src, ref, T = hidden_truth(2)
     coarse = replace(PipelineConfig().coarse_pose, verify_voxel=0.1, icp=True,
