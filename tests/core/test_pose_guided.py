@@ -130,13 +130,20 @@ def features(points, centers):
                         valid=np.ones((n, K), bool), z=np.zeros((n, K, 2), np.float32))
 
 
-def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching():
+def right_nodes_wrong_points():
+    """A room seen twice, its nodes' centers decimetres off, and the pose between the views:
+    (room, node centers, T, source features, reference features)."""
     rng = np.random.default_rng(2)
     room, objects, ctr = room_objects(rng)
     T = make_T(yaw_rotation(2.5), np.array([5.0, 1.0, 0.0]))
     src = features(sample(rng, objects), ctr + rng.normal(0, 0.15, ctr.shape))
     ref_pts = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(objects.shape[0], K, 3)
     ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
+    return room, ctr, T, src, ref
+
+
+def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching():
+    room, ctr, T, src, ref = right_nodes_wrong_points()
     ref_room = apply_T(T, room)
     off = replace(PipelineConfig(), guided=GuidedConfig(enabled=False))
     plain = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
@@ -170,12 +177,7 @@ def test_only_the_guided_estimate_waives_ties_with_competitors_the_clouds_refute
     """The learned estimate refuses every near-tie; the guided one only those whose competitor
     reaches GuidedConfig.competitor_min_fitness (the wiring of the rule, pose/verdict.py)."""
     import sgreg_core.pipeline as pipeline
-    rng = np.random.default_rng(2)
-    room, objects, ctr = room_objects(rng)
-    T = make_T(yaw_rotation(2.5), np.array([5.0, 1.0, 0.0]))
-    src = features(sample(rng, objects), ctr + rng.normal(0, 0.15, ctr.shape))
-    ref_pts = apply_T(T, sample(rng, objects).reshape(-1, 3)).reshape(objects.shape[0], K, 3)
-    ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
+    room, ctr, T, src, ref = right_nodes_wrong_points()
     seen, estimate = [], pipeline.estimate_pose
 
     def recording(*args, **kwargs):
