@@ -378,8 +378,9 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     pose_cfg = cfg.pose_config()
     dense_clouds = cfg.mode == "dense" and src_cloud is not None and ref_cloud is not None
     guided_on = cfg.guided.enabled and dense_clouds
-    second_pass = (guided_on or (cfg.repeats.enabled and dense_clouds)
-                   or (cfg.mode == "coarse" and cfg.coarse_pairs > 0 and src_cloud is not None))
+    coarse_retry = (out.mode == "coarse" and cfg.coarse_pairs > 0 and src_cloud is not None
+                    and ref_cloud is not None)
+    second_pass = guided_on or (cfg.repeats.enabled and dense_clouds) or coarse_retry
     if second_pass and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
         # one reference for every pass: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
@@ -409,8 +410,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
             if out.repeat < cfg.repeats.max_repeat:   # NaN (cannot be told) is not below
                 res, out.unrepeated = third, True
         pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
-    if (out.mode == "coarse" and cfg.coarse_pairs and res.reason in COARSE_PAIRS_AFTER
-            and src_cloud is not None and ref_cloud is not None):
+    if coarse_retry and res.reason in COARSE_PAIRS_AFTER:
         t_pairs = time.perf_counter()
         second = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
                                replace(pose_cfg, pair_hypotheses=cfg.coarse_pairs), groups=groups)

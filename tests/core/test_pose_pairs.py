@@ -12,19 +12,7 @@ from sgreg_core.pose import PoseConfig, apply_T, estimate_pose, make_T, yaw_rota
 from sgreg_core.pose.pairs import pair_poses, placement_support, yaw_hypotheses
 
 from test_pose_estimator import pose_error
-from test_pose_guided import features, room_objects, sample
-
-
-def hidden_truth(seed, noise=0.05):
-    """Room clouds in both frames and 12 center matches: 3 right (decimetre noise), 5 that agree
-    on a wrong pose, 4 at random."""
-    rng = np.random.default_rng(seed)
-    room, _, ctr = room_objects(rng)
-    T = make_T(yaw_rotation(1.1), np.array([2.0, -3.0, 0.0]))
-    wrong = make_T(yaw_rotation(-0.4), np.array([-1.0, 2.5, 0.0]))
-    src = np.concatenate([ctr, rng.uniform(0, 6, (4, 3))]) + rng.normal(0, noise, (12, 3))
-    ref = np.concatenate([apply_T(T, ctr[:3]), apply_T(wrong, ctr[3:]), rng.uniform(0, 6, (4, 3))])
-    return room, apply_T(T, room), src, ref, T
+from test_pose_guided import features, hidden_truth, room_objects, sample
 
 
 def test_yaw_hypotheses_recover_a_pose_from_two_matches_and_count_its_support():
@@ -48,7 +36,14 @@ def test_pair_poses_rank_by_support_and_keep_each_pose_once():
     assert sum(e < 1e-6 for e in errors) == 1         # ...and the three right pairs' pose once
     first = pair_poses(src, ref, 0.3, 3, limit=1)
     assert len(first) == 1 and np.allclose(first[0], poses[0])
+    # centers 5 cm off: the right pose is still among them, the wrong one too
+    *_, src_n, ref_n, _ = hidden_truth(2)
+    near = [pose_error(P, T)[0] < 0.3 for P in pair_poses(src_n, ref_n, 0.3, 3)]
+    assert any(near) and not all(near)
+    # a pair needs a third center agreeing, and a pose is fixed only by centers far enough apart
+    assert pair_poses(src_n[:2], ref_n[:2], 0.3, 3) == []
     assert pair_poses(src[:1], ref[:1], 0.3, 2) == []
+    assert pair_poses(src_n[:1], ref_n[:1], 0.3, 2) == []
 
 
 def test_a_noisy_consensus_takes_one_place_only():
