@@ -410,7 +410,8 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
             if out.repeat < cfg.repeats.max_repeat:   # NaN (cannot be told) is not below
                 res, out.unrepeated = third, True
         pose_ms["repeats"] = 1e3 * (time.perf_counter() - t_rep)
-    if coarse_retry and res.reason in COARSE_PAIRS_AFTER:
+    # with no candidate at all (GNC found no fit) the pair poses would meet the same fit
+    if coarse_retry and res.reason in COARSE_PAIRS_AFTER and res.candidates:
         t_pairs = time.perf_counter()
         second = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
                                replace(pose_cfg, pair_hypotheses=cfg.coarse_pairs), groups=groups)

@@ -99,8 +99,13 @@ def test_center_poses_find_three_right_center_matches_that_a_bigger_wrong_clique
     assert all(pose_error(P, T)[0] > 0.3 for P, _ in off)
     best = center_poses(src_c, ref_c, w, verifier, pose, GuidedConfig())[0][0]
     assert pose_error(best, T)[0] < 0.05
+    # ranked on the clouds are only the best supported pair poses: the wrong consensus alone
+    short = center_poses(src_c, ref_c, w, verifier, pose, GuidedConfig(pair_poses=1, pair_candidates=1))
+    assert all(pose_error(P, T)[0] > 0.3 for P, _ in short)
     with pytest.raises(ValueError):
         GuidedConfig(min_pair_support=1)
+    with pytest.raises(ValueError):
+        GuidedConfig(pair_poses=3, pair_candidates=2)
 
 
 class ScriptedMatcher:

@@ -99,3 +99,9 @@ def test_a_refused_coarse_estimate_is_tried_again_with_the_pairs_poses():
     # without clouds to rank them the pairs' poses are not tried
     blind = register_features(CenterMatcher(), src, ref, None, None, replace(off, coarse_pairs=8))
     assert "pairs" not in blind.pose_timing_ms
+    # centers on one vertical line fix no yaw: GNC finds no fit, and neither would a second pass
+    src_line, ref_line = src_c.copy(), ref_c.copy()
+    src_line[:, :2], ref_line[:, :2] = src_c[0, :2], ref_c[0, :2]
+    line = register_features(CenterMatcher(), features(pts, src_line), features(pts, ref_line), room,
+                             apply_T(T, room), replace(off, coarse_pairs=8))
+    assert line.reason in COARSE_PAIRS_AFTER and "pairs" not in line.pose_timing_ms, line.reason
