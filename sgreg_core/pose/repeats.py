@@ -35,7 +35,7 @@ import numpy as np
 from .estimator import PoseConfig, refine_icp_coarse_to_fine
 from .pairs import placement_support, yaw_hypotheses
 from .verdict import REASONS
-from .verify import CloudVerifier, check_rim
+from .verify import CloudVerifier, check_probe, check_rim
 
 
 @dataclass
@@ -69,6 +69,8 @@ class RepeatConfig:
                        showed 0.48 and up; docs/VERDICT.md section 9)...
     min_support:       ...and at least this many source nodes land on look-alikes at the estimate.
     footprint_rim:     PoseConfig.footprint_rim of the second estimate.
+    footprint_probe:   PoseConfig.footprint_probe of the second estimate (m; 0: the first
+                       estimate's).
     min_confidence:    VerdictConfig.min_confidence of the second estimate."""
 
     top_k: int = 3
@@ -87,6 +89,7 @@ class RepeatConfig:
     max_repeat: float = 0.4
     min_support: int = 3
     footprint_rim: int = 1
+    footprint_probe: float = 0.5
     min_confidence: float = 0.8
 
     def __post_init__(self):
@@ -94,6 +97,7 @@ class RepeatConfig:
         if bad:
             raise ValueError(f"repeats.after: {bad} are not verdict refusals {list(REASONS[1:])}")
         check_rim(self.footprint_rim)
+        check_probe(self.footprint_probe)
         if not (0.0 <= self.min_confidence <= 1.0 and self.max_repeat > 0
                 and self.min_support >= 1):
             raise ValueError("repeats: min_confidence must lie in [0, 1], max_repeat > 0, "
@@ -110,6 +114,7 @@ class RepeatConfig:
     def relaxed(self, pose_cfg: PoseConfig) -> PoseConfig:
         """pose_cfg under the gates for unrepeated maps."""
         return replace(pose_cfg, footprint_rim=self.footprint_rim,
+                       footprint_probe=self.footprint_probe or pose_cfg.footprint_probe,
                        verdict=replace(pose_cfg.verdict, min_confidence=self.min_confidence))
 
 

@@ -68,10 +68,22 @@ def test_non_finite_nodes_take_no_part_and_empty_graphs_give_nothing():
 @pytest.mark.parametrize("bad", [{"top_k": 0}, {"bound": 0.0}, {"after": ("ok",)},
                                  {"after": ("too_few_nodes",)}, {"min_confidence": 1.5},
                                  {"footprint_rim": -1}, {"max_repeat": 0.0}, {"rivals": 0},
-                                 {"icp_distances": ()}])
+                                 {"icp_distances": ()}, {"footprint_probe": -0.1},
+                                 {"footprint_probe": float("nan")}])
 def test_repeat_config_rejects_what_cannot_work(bad):
     with pytest.raises(ValueError):
         RepeatConfig(**bad)
+
+
+def test_the_laxer_gates_count_the_fitness_with_the_footprint_probe():
+    """The second estimate's probe is RepeatConfig's, or the first estimate's when that is
+    0; its rim and confidence floor are RepeatConfig's."""
+    from dataclasses import replace
+    strict = PoseConfig()
+    relaxed = RepeatConfig().relaxed(strict)
+    assert relaxed.footprint_probe == 0.5 and relaxed.footprint_rim == 1
+    assert relaxed.verdict.min_confidence == 0.8 and strict.footprint_probe == 0.0
+    assert RepeatConfig(footprint_probe=0.0).relaxed(replace(strict, footprint_probe=0.3)).footprint_probe == 0.3
 
 
 def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat_the_source():
