@@ -137,6 +137,16 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
     assert not in_twins.success and not in_twins.unrepeated
     assert in_twins.repeat >= on.repeats.max_repeat
 
+    # a reference that holds the floor up to two walls it never mapped: only with the probe do
+    # those walls count neither for nor against the right pose under the laxer gates
+    unmapped = ((room[:, 0] < 0.05) | (room[:, 1] < 0.05)) & (room[:, 2] > 0.02)
+    cut = apply_T(T, room[~unmapped])
+    unprobed = replace(on, repeats=replace(on.repeats, footprint_probe=0.0))
+    without = register_features(RightMatcher(), src, one, room, cut, unprobed)
+    assert not without.success and without.reason == "low_confidence"
+    probed = register_features(RightMatcher(), src, one, room, cut, on)
+    assert probed.success and probed.unrepeated and probed.footprint_fitness > without.footprint_fitness
+
 
 def test_look_alikes_that_fix_no_pose_give_no_hypothesis():
     """One reference node (every source node's look-alike): two pairs onto the same point fix no
