@@ -38,14 +38,17 @@ LOG_ZERO = -1e9
 class MatchConfig:
     """d_match:         node descriptor size (what a coarse message carries per node).
     node_threshold:  minimum dual-softmax confidence A_ij of a node match.
-    node_topk:       a node match must be in the top-k of its row and of its column.
+    node_topk:       a node match must be in the top-k of its row and of its column (3: in
+                     maps that share few objects the right match is often a node's second or
+                     third choice, and the pose estimator's cliques and the verdict sort them
+                     out; docs/RESULTS.md, session 18).
     sinkhorn_iters:  Sinkhorn iterations (log domain in training, scaling vectors at inference).
     point_threshold: minimum transport mass (rows sum to 1) of a point correspondence.
     point_topk:      mutual top-k for point correspondences."""
 
     d_match: int = 64
     node_threshold: float = 0.05
-    node_topk: int = 2
+    node_topk: int = 3
     sinkhorn_iters: int = 20
     point_threshold: float = 0.1
     point_topk: int = 1
