@@ -79,6 +79,22 @@ class VerdictConfig:
     competitor_deg: float = 10.0
     confidence_weights: tuple[float, ...] = (-13.206, 2.535, 14.973, -0.543, -2.353, 1.368)
 
+    def __post_init__(self):
+        shares = {k: getattr(self, k) for k in ("min_fitness", "min_footprint_share",
+                                                 "competitor_min_fitness", "min_confidence")}
+        bad = [k for k, v in shares.items() if not 0.0 <= v <= 1.0]
+        if bad:
+            raise ValueError(f"verdict: {bad} are shares and must lie in [0, 1]")
+        if not (self.min_inliers >= 1 and self.min_objects >= 1 and self.min_spread >= 0
+                and self.max_ambiguity >= 0 and self.competitor_m > 0 and self.competitor_deg > 0):
+            raise ValueError("verdict: min_inliers and min_objects must be >= 1, min_spread >= 0, "
+                             "max_ambiguity >= 0 (0: every estimate ties), competitor_m and "
+                             "competitor_deg > 0")
+        w = np.asarray(self.confidence_weights, np.float64)
+        if w.shape != (6,) or not np.isfinite(w).all():
+            raise ValueError("verdict: confidence_weights must be 6 finite numbers (bias, log "
+                             "objects, fitness, footprint share, ambiguity, inlier ratio)")
+
 
 @dataclass
 class Evidence:

@@ -369,6 +369,17 @@ def test_a_near_tie_with_a_competitor_the_clouds_refute_is_refused_only_by_defau
     assert judge(replace(ev, competitor_fitness=float("nan")), lenient, have_clouds=False) == "ambiguous"
 
 
+@pytest.mark.parametrize("bad", [{"min_fitness": 1.5}, {"min_confidence": float("nan")},
+                                 {"competitor_min_fitness": -0.1}, {"min_inliers": 0},
+                                 {"min_spread": -1.0}, {"max_ambiguity": -0.1},
+                                 {"competitor_deg": 0.0}, {"confidence_weights": (1.0, 2.0)}])
+def test_verdict_config_refuses_values_that_would_verify_anything_or_nothing(bad):
+    with pytest.raises(ValueError, match="verdict"):
+        VerdictConfig(**bad)
+    VerdictConfig(min_inliers=3, min_objects=1, min_spread=0, min_fitness=0,
+                  min_footprint_share=0, max_ambiguity=100, min_confidence=0)  # the permissive replay
+
+
 def test_inliers_from_too_few_objects_are_refused():
     rng = np.random.default_rng(3)
     T = random_room_pose(rng)
