@@ -4,7 +4,8 @@ reason instead of an exception.
 
 For each peer: coarse graphs arrive at ~1 Hz -> an estimate from node centers (merged with the
 point correspondences kept from the link's last dense estimate) and, when enough nodes match
-and the minimum interval has passed, a dense request. Before the peer's points are at hand a
+and the minimum interval has passed, a dense request (at once when only a dense estimate can
+take a coarse one that passed the verdict further: candidate_request). Before the peer's points are at hand a
 coarse estimate cannot be verified: when a request goes out for it, the dense answer answers
 the query and no coarse result is published (counter deferred_to_dense). A dense answer -> point matching -> a
 dense estimate. Every estimate runs the one pipeline of pipeline.py (same code and verdict as
@@ -155,6 +156,13 @@ class PeersConfig:
         right first dense estimate that it agrees with is confirmed at once instead of published
         as awaiting_confirmation. It confirms the dense estimate or nothing: it changes no link
         state of its own (a tie it finds is remembered, as any tie).
+    candidate_request: a coarse estimate that passes the verdict asks for the peer's points at
+        once, not after the search interval, when only a dense estimate can take it further:
+        it made the link's candidate, which only a dense estimate confirms (confirm_with_dense;
+        until one comes every coarse estimate of the link awaits confirmation; once per
+        candidate), or there are no points of the peer to verify it on (dropped when a map was
+        levelled anew or moved; the dense answer then answers the query, as at first contact).
+        Never to a peer other agents' links place (attached_request_interval_s).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -207,6 +215,9 @@ class PeersConfig:
     first_link_hold_s: float = param(0.0, "a link is first confirmed only once its candidate has "
                                      "held this long (0: off; for floors of identical rooms)",
                                      0.0, 3600.0, live=True)
+    candidate_request: bool = param(True, "a coarse estimate that passes the verdict asks for the "
+                                    "peer's points at once when it made the link's candidate or "
+                                    "there are none to verify it on", live=True)
     coarse_with_dense: bool = param(True, "with a dense answer while no link is confirmed, make "
                                     "the coarse estimate of the same graphs too, as the second "
                                     "estimate a confirmation needs")
@@ -289,6 +300,7 @@ class PeerLink:
     heard_at: float = -np.inf                    # when its last accepted message arrived
     held: dict = field(default_factory=dict)     # stream -> a sequence outside the window, held
     last_request_at: float = -np.inf
+    gave_up: bool = False        # its last request went unanswered after every retry
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
     candidate: Hypothesis | None = None
     candidate_at: float = -np.inf   # when the candidate was first estimated
@@ -430,13 +442,16 @@ class Peers:
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
                                 self._coarse_cfg, timings, kept=kept)
         link.coarse_data = (self.agent.digest, msg.digest)
-        request = self._maybe_request(link, reg, now)
+        # a coarse estimate that passed the verdict with no points to check it on: they are
+        # asked for at once (candidate_request)
+        request = self._maybe_request(link, reg, now, urgent=link.dense_cloud is None and reg.success)
         if link.dense_cloud is None and request is not None:
             # Nothing to verify this estimate against: the dense answer to the request answers
             # this query (the paper's coarse-to-fine step), instead of a result bound to fail.
             self._count("deferred_to_dense")
             return None, request
-        return self._judge(link, reg, msg.digest, timings, t0, now), request
+        est = self._judge(link, reg, msg.digest, timings, t0, now)
+        return est, request or self._send_wanted(link, now)
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
@@ -453,7 +468,7 @@ class Peers:
             return None
         if link.pending is not None and msg.requester == self.agent.cfg.name \
                 and msg.request_sequence == link.pending.sequence:
-            link.exchanged, link.pending = link.pending.data, None
+            link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
         if not self.agent.ready:
             self._count("own_map_not_ready")
             return None
@@ -513,7 +528,7 @@ class Peers:
                 self._count("request_gave_up")
                 self.log(f"peer {link.peer_id} did not answer dense request {p.sequence} after "
                          f"{p.retries} retries; giving up until the next request interval")
-                link.pending = None
+                link.pending, link.gave_up = None, True
                 link.last_request_at = now
                 continue
             self._count("request_retry")
@@ -806,7 +821,8 @@ class Peers:
             link.kept = hyp.kept
 
     # ---- dense requests ------------------------------------------------------------------
-    def _maybe_request(self, link: PeerLink, reg: Registration, now: float) -> DenseRequestMessage | None:
+    def _maybe_request(self, link: PeerLink, reg: Registration, now: float,
+                       urgent: bool = False) -> DenseRequestMessage | None:
         """Wish for the points of the peer's matched nodes, and ask now if allowed (else on_tick
         asks once the interval has passed)."""
         if reg.node_matches >= self.cfg.min_node_matches:
@@ -816,11 +832,12 @@ class Peers:
             _, first = np.unique(ids, return_index=True)
             best = ids[np.sort(first)][: self.cfg.max_request_nodes]
             link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
-        return self._send_wanted(link, now)
+        return self._send_wanted(link, now, urgent)
 
-    def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
+    def _send_wanted(self, link: PeerLink, now: float, urgent: bool = False) -> DenseRequestMessage | None:
         """The request for the link's wish: one at a time, rate-limited, and only for graphs not
-        yet exchanged."""
+        yet exchanged; urgent (or for a coarse candidate, candidate_request) without waiting
+        for the search interval."""
         if link.wanted is None or link.pending is not None:
             return None
         data, wanted = link.wanted
@@ -833,6 +850,9 @@ class Peers:
             # settled: a placed peer whose points are at hand (dropped when its map moved), or
             # one that other agents' links place through a consistent triangle
             interval = max(interval, self.cfg.attached_request_interval_s)
+        elif self.cfg.candidate_request and not link.gave_up and \
+                (urgent or self._candidate_waits_for_dense(link)):
+            interval = 0.0     # a peer that let the last request go unanswered waits it out
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
@@ -840,6 +860,12 @@ class Peers:
         link.last_request_at = now
         self._count("requests")
         return self._request_message(link, link.pending)
+
+    def _candidate_waits_for_dense(self, link: PeerLink) -> bool:
+        """A coarse candidate that no request has followed yet (candidate_request)."""
+        cand = link.candidate
+        return (link.confirmed is None and cand is not None and cand.mode != "dense"
+                and link.last_request_at < link.candidate_at)
 
     def _request_message(self, link: PeerLink, p: _PendingRequest) -> DenseRequestMessage:
         link.asked = (link.asked + [p.sequence])[-8:]

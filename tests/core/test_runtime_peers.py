@@ -347,6 +347,45 @@ def test_a_dense_estimate_stands_for_the_coarse_candidate_it_agrees_with(model, 
     assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
 
 
+def test_a_coarse_candidate_asks_for_the_dense_estimate_that_confirms_it_at_once(model, graphs):
+    """candidate_request: only a dense estimate confirms a coarse candidate, so it is asked for
+    within the search interval, once per candidate; without it the link waits the interval
+    out, each coarse estimate meanwhile awaiting confirmation."""
+    def coarse_candidate(cfg):
+        a, b, reg, _ = make_agents(model, graphs, cfg)
+        _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+        shipped = reg._dense_cfg
+        reg._dense_cfg = replace(shipped, pose=replace(shipped.pose, verdict=replace(
+            shipped.pose.verdict, min_objects=10_000)))          # dense estimates are refused
+        assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
+            == "too_few_objects"
+        drift(b, graphs, 2, 1.0)
+        est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+        assert est.reason == "awaiting_confirmation" and reg.links["b"].candidate.mode == "coarse"
+        return b, reg, req, shipped
+
+    for at_once in (True, False):
+        b, reg, req, shipped = coarse_candidate(PeersConfig(candidate_request=at_once,
+                                                            coarse_with_dense=False))
+        reg._dense_cfg = shipped
+        now = 1.2
+        if not at_once:
+            assert req is None and reg.on_tick(1.5) == []       # the search interval holds it
+            assert reg.on_coarse(b.coarse_message(3), now=1.9)[0].reason == "awaiting_confirmation"
+            [req], now = reg.on_tick(2.0), 2.2
+        assert req is not None and reg.counters["requests"] == 2
+        est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=now)
+        assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
+    # once per candidate: after its request was answered (refused), new coarse graphs that
+    # agree with it wait for the interval
+    b, reg, req, _ = coarse_candidate(PeersConfig(coarse_with_dense=False))
+    assert reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.2).reason \
+        == "too_few_objects"
+    drift(b, graphs, 3, 1.5, dx=0.03)
+    est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
+    assert est.reason == "awaiting_confirmation" and req is None and reg.counters["requests"] == 2
+
+
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
@@ -419,13 +458,21 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     assert reg.links["b"].kept is not None
     # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
     # cloud they were verified on, no longer describe b's map
-    b.set_graph(moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3)), 2, 1.5)
+    jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
+    b.set_graph(jumped, 2, 1.5)
+    est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
+    assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
+    # the coarse estimate passes the verdict with no points to check it on: they are asked for
+    # at once (candidate_request), and their dense answer answers the query
+    assert est is None and req is not None
+    assert reg.counters["kept_dropped"] == 1 and reg.counters["deferred_to_dense"] == 2
+    # without candidate_request: new points are asked for after the search interval (2 s), not
+    # the confirmed link's (5 s), and the same two graphs may be asked again
+    a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(candidate_request=False))
+    b.set_graph(jumped, 2, 1.5)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
-    assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
-    assert reg.counters["kept_dropped"] == 1 and req is None    # asked 1.5 s ago
-    # new points are asked for after the search interval (2 s), not the confirmed link's (5 s),
-    # and the same two graphs may be asked again: their dense answer answers the query
+    assert reg.links["b"].dense_cloud is None and req is None    # asked 1.5 s ago
     est, req = reg.on_coarse(b.coarse_message(4), now=2.0)
     assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
 
@@ -683,3 +730,22 @@ def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, gra
     reg.expected = lambda peer: truth                 # the merged frame agrees
     est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
     assert est.verified
+
+
+def test_dense_answers_are_rate_limited_per_requester_and_overall(model, graphs):
+    """One answer per requester per dense_min_interval_s, a request on a timer of that same
+    period answered despite jitter; many requesters together stay within the token budget."""
+    from sgreg_core.runtime.messages import DenseRequestMessage
+    b = make_agents(model, graphs)[1]
+    b.cfg = AgentConfig(name="b", dense_min_interval_s=1.0, dense_answers_per_s=2.0)
+
+    def ask(who, now):
+        return b.answer_request(DenseRequestMessage(who, "b", 1, 1, b.weights_id, np.zeros(0, np.int64)), now)
+
+    assert ask("a", 10.0)[0] is not None
+    msg, why = ask("a", 10.5)
+    assert msg is None and "within" in why and b.counters["request_rate_limited"] == 1
+    assert ask("a", 10.0 + 0.9999)[0] is not None          # the requester's 1 Hz timer, jittered
+    assert ask("c", 11.0)[0] is not None                  # another requester: its own interval
+    msg, why = ask("d", 11.0)                             # but not past the budget of all
+    assert msg is None and b.counters["request_over_budget"] == 1
