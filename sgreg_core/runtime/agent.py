@@ -21,15 +21,17 @@ from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 from .messages import DenseRequestMessage, GraphMessage, graph_digest
 
+ANSWER_SLACK = 0.1   # share of dense_min_interval_s a request may come early and be answered
+
 
 @dataclass
 class AgentConfig:
     """name: agent id, also the namespace of its topics.
     min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
     max_points_in_map: a bigger instance map is refused (protects the node's memory and time).
-    dense_min_interval_s: at most one dense answer per requester per this interval (a request a
-        twentieth of it early is on time: a requester on a timer of the same period, 1 Hz coarse
-        graphs against a 1 s interval, would otherwise be refused by clock jitter alone).
+    dense_min_interval_s: at most one dense answer per requester per this interval (a request
+        up to ANSWER_SLACK of it early is on time: a requester that asks again as soon as this
+        allows, PeersConfig.prompt_request, would otherwise be refused by jitter alone).
     dense_answers_per_s: at most this many dense answers per second to all requesters
         together (a token bucket of that size): requests under many names cannot make the
         agent send much more than it receives.
@@ -204,8 +206,8 @@ class AgentCore:
         """The dense answer to a peer's request, or why there is none.
 
         Returns (message, "") or (None, one-line reason, counted): a request for another agent,
-        from other weights, before any map, or within dense_min_interval_s of the last answer
-        to the same requester is not answered."""
+        from other weights, before any map, or within dense_min_interval_s (less ANSWER_SLACK
+        of it) of the last answer to the same requester is not answered."""
         if not req.from_agent or req.from_agent == self.cfg.name or len(req.node_ids) > 100_000:
             return None, self.refuse("bad_request", f"dense request from {req.from_agent!r} for "
                                      f"{len(req.node_ids)} nodes refused")
@@ -218,7 +220,8 @@ class AgentCore:
         if not self.ready:
             return None, self.refuse("request_before_map", f"dense request from {req.from_agent} "
                                      "before any map; not answered")
-        if now - self._last_answer.get(req.from_agent, -np.inf) < 0.95 * self.cfg.dense_min_interval_s:
+        if now - self._last_answer.get(req.from_agent, -np.inf) < \
+                (1.0 - ANSWER_SLACK) * self.cfg.dense_min_interval_s:
             return None, self.refuse("request_rate_limited", f"dense request {req.sequence} from "
                                      f"{req.from_agent} within {self.cfg.dense_min_interval_s} s of the "
                                      "last answer; not answered")

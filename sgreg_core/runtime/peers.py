@@ -3,14 +3,15 @@ state machine, with every failure of docs/ARCHITECTURE.md ("Failure behaviour") 
 reason instead of an exception.
 
 For each peer: coarse graphs arrive at ~1 Hz -> an estimate from node centers (merged with the
-point correspondences kept from the link's last dense estimate) and, when enough nodes match
-and the minimum interval has passed, a dense request (at once when only a dense estimate can
-take a coarse one that passed the verdict further: candidate_request). Before the peer's points are at hand a
-coarse estimate cannot be verified: when a request goes out for it, the dense answer answers
-the query and no coarse result is published (counter deferred_to_dense). A dense answer -> point matching -> a
-dense estimate. Every estimate runs the one pipeline of pipeline.py (same code and verdict as
-`sgreg register` and the benchmarks), with the peer's graph as source and the agent's own as
-reference, so verification checks the peer's sampled points against the agent's full cloud.
+point correspondences kept from the link's last dense estimate) and, when enough nodes match and
+the minimum interval has passed, a dense request (as soon as the peer answers again when only
+its points can take a coarse estimate that passed the verdict further: prompt_request). Before
+the peer's points are at hand a coarse estimate cannot be verified: when a request goes out for
+it, the dense answer answers the query and no coarse result is published (counter
+deferred_to_dense). A dense answer -> point matching -> a dense estimate. Every estimate runs
+the one pipeline of pipeline.py (same code and verdict as `sgreg register` and the benchmarks),
+with the peer's graph as source and the agent's own as reference, so verification checks the
+peer's sampled points against the agent's full cloud.
 
 An estimate that passes the verdict is not yet published as verified. The link to a peer is:
 - none -> candidate: a first estimate that passes the verdict;
@@ -36,7 +37,8 @@ whenever either map changes: when the nodes they come from have moved in either 
 front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
 the peer's dense cloud (so too when either map is levelled anew), and every merged estimate
 that fails the verdict drops them too. Without a dense cloud of the peer nothing is verified
-at all, so new points are then asked for at the search interval, not the confirmed link's.
+at all, so new points are then asked for at the search interval, not the confirmed link's, and
+promptly when a coarse estimate passes the verdict (prompt_request).
 An estimate the verdict refused only for its confidence is taken when the peer's confirmed
 link agrees with it (vouched_min_confidence). With first_link_hold_s, a first confirmation also
 waits until the candidate has stood that long; with withdraw_on_tie, a confirmed link is
@@ -156,13 +158,16 @@ class PeersConfig:
         right first dense estimate that it agrees with is confirmed at once instead of published
         as awaiting_confirmation. It confirms the dense estimate or nothing: it changes no link
         state of its own (a tie it finds is remembered, as any tie).
-    candidate_request: a coarse estimate that passes the verdict asks for the peer's points at
-        once, not after the search interval, when only a dense estimate can take it further:
-        it made the link's candidate, which only a dense estimate confirms (confirm_with_dense;
-        until one comes every coarse estimate of the link awaits confirmation; once per
-        candidate), or there are no points of the peer to verify it on (dropped when a map was
-        levelled anew or moved; the dense answer then answers the query, as at first contact).
-        Never to a peer other agents' links place (attached_request_interval_s).
+    prompt_request: a coarse estimate that passes the verdict asks for the peer's points as soon
+        as the peer answers again (AgentConfig.dense_min_interval_s after the last request, the
+        fleet's setting assumed), not after the search interval, when only they can take it
+        further: it made the link's candidate, which only a dense estimate confirms
+        (confirm_with_dense; until one comes every coarse estimate of the link awaits
+        confirmation), or there are no points of the peer to verify it on (dropped when a map
+        was levelled anew or moved; the dense answer then answers the query, as at first
+        contact). One request per such estimate; none to a peer other agents' links place
+        (attached_request_interval_s), nor to one that let the last request go unanswered after
+        every retry (asked at the interval, as before).
     agree_m / agree_deg: two estimates agree when they differ by less than this.
     quiet_peer_s: a peer whose graph does not change sends coarse graphs only as a heartbeat
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
@@ -215,9 +220,9 @@ class PeersConfig:
     first_link_hold_s: float = param(0.0, "a link is first confirmed only once its candidate has "
                                      "held this long (0: off; for floors of identical rooms)",
                                      0.0, 3600.0, live=True)
-    candidate_request: bool = param(True, "a coarse estimate that passes the verdict asks for the "
-                                    "peer's points at once when it made the link's candidate or "
-                                    "there are none to verify it on", live=True)
+    prompt_request: bool = param(True, "a coarse estimate that passes the verdict asks for the peer's "
+                                 "points as soon as the peer answers again when it made the link's "
+                                 "candidate or there are none to verify it on", live=True)
     coarse_with_dense: bool = param(True, "with a dense answer while no link is confirmed, make "
                                     "the coarse estimate of the same graphs too, as the second "
                                     "estimate a confirmation needs")
@@ -238,6 +243,7 @@ class _PendingRequest:
     sent_at: float
     data: tuple[str, str]       # (own, peer) graph digests the request was made for
     retries: int = 0
+    earlier: tuple[int, ...] = ()   # the sequences it was sent under before its retries
 
 
 @dataclass
@@ -301,6 +307,7 @@ class PeerLink:
     held: dict = field(default_factory=dict)     # stream -> a sequence outside the window, held
     last_request_at: float = -np.inf
     gave_up: bool = False        # its last request went unanswered after every retry
+    prompt: bool = False         # a coarse estimate waits for the peer's points (prompt_request)
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
     candidate: Hypothesis | None = None
     candidate_at: float = -np.inf   # when the candidate was first estimated
@@ -442,16 +449,23 @@ class Peers:
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
                                 self._coarse_cfg, timings, kept=kept)
         link.coarse_data = (self.agent.digest, msg.digest)
-        # a coarse estimate that passed the verdict with no points to check it on: they are
-        # asked for at once (candidate_request)
-        request = self._maybe_request(link, reg, now, urgent=link.dense_cloud is None and reg.success)
+        passes = reg.success and reg.node_matches >= max(self.cfg.min_coarse_matches,
+                                                         self.cfg.min_node_matches)
+        if passes and link.dense_cloud is None:
+            link.prompt = True    # nothing to check it on: only the peer's points can
+        request = self._maybe_request(link, reg, now)
         if link.dense_cloud is None and request is not None:
             # Nothing to verify this estimate against: the dense answer to the request answers
             # this query (the paper's coarse-to-fine step), instead of a result bound to fail.
             self._count("deferred_to_dense")
             return None, request
         est = self._judge(link, reg, msg.digest, timings, t0, now)
-        return est, request or self._send_wanted(link, now)
+        cand = link.candidate
+        if (self.cfg.confirm_with_dense and est.reason == "awaiting_confirmation" and cand is not None
+                and cand.mode != "dense" and link.candidate_at == now):
+            link.prompt = True    # a new coarse candidate: only a dense estimate confirms it
+            request = request or self._send_wanted(link, now)
+        return est, request
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
@@ -467,7 +481,7 @@ class Peers:
         if link is None:
             return None
         if link.pending is not None and msg.requester == self.agent.cfg.name \
-                and msg.request_sequence == link.pending.sequence:
+                and msg.request_sequence in (link.pending.sequence, *link.pending.earlier):
             link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
         if not self.agent.ready:
             self._count("own_map_not_ready")
@@ -475,7 +489,7 @@ class Peers:
         timings: dict = {}
         t0 = time.perf_counter()
         peer = self._dense_features(msg, timings)
-        link.dense, link.dense_cloud = msg, msg.points
+        link.dense, link.dense_cloud, link.prompt = msg, msg.points, False
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
         beside = self._coarse_beside(link, msg, timings, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
@@ -533,7 +547,8 @@ class Peers:
                 continue
             self._count("request_retry")
             self._request_seq += 1
-            p.sequence, p.retries, p.sent_at = self._request_seq, p.retries + 1, now
+            p.earlier, p.sequence = p.earlier + (p.sequence,), self._request_seq
+            p.retries, p.sent_at = p.retries + 1, now
             out.append(self._request_message(link, p))
         return out
 
@@ -667,7 +682,8 @@ class Peers:
         """Forget the kept correspondences and the peer's points. Without them nothing about
         the link can be verified: new points are asked for as while searching
         (search_request_interval_s), even for the same two graphs, rather than after the
-        confirmed link's interval (a map is levelled anew several times while it is small)."""
+        confirmed link's interval (a map is levelled anew several times while it is small), and
+        promptly once a coarse estimate passes the verdict (prompt_request)."""
         self._count("kept_dropped")
         link.kept, link.dense_cloud = None, None
         link.exchanged = None
@@ -812,7 +828,7 @@ class Peers:
     def _confirm(self, link: PeerLink, hyp: Hypothesis, counter: str,
                  kept_from: Hypothesis | None = None) -> None:
         """The link is confirmed with hyp; its dense inliers (or kept_from's) are kept."""
-        link.confirmed, link.candidate = hyp, None
+        link.confirmed, link.candidate, link.prompt = hyp, None, False
         self._keep(link, kept_from or hyp)
         self._count(counter)
 
@@ -821,8 +837,7 @@ class Peers:
             link.kept = hyp.kept
 
     # ---- dense requests ------------------------------------------------------------------
-    def _maybe_request(self, link: PeerLink, reg: Registration, now: float,
-                       urgent: bool = False) -> DenseRequestMessage | None:
+    def _maybe_request(self, link: PeerLink, reg: Registration, now: float) -> DenseRequestMessage | None:
         """Wish for the points of the peer's matched nodes, and ask now if allowed (else on_tick
         asks once the interval has passed)."""
         if reg.node_matches >= self.cfg.min_node_matches:
@@ -832,12 +847,11 @@ class Peers:
             _, first = np.unique(ids, return_index=True)
             best = ids[np.sort(first)][: self.cfg.max_request_nodes]
             link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
-        return self._send_wanted(link, now, urgent)
+        return self._send_wanted(link, now)
 
-    def _send_wanted(self, link: PeerLink, now: float, urgent: bool = False) -> DenseRequestMessage | None:
+    def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
         """The request for the link's wish: one at a time, rate-limited, and only for graphs not
-        yet exchanged; urgent (or for a coarse candidate, candidate_request) without waiting
-        for the search interval."""
+        yet exchanged."""
         if link.wanted is None or link.pending is not None:
             return None
         data, wanted = link.wanted
@@ -850,22 +864,16 @@ class Peers:
             # settled: a placed peer whose points are at hand (dropped when its map moved), or
             # one that other agents' links place through a consistent triangle
             interval = max(interval, self.cfg.attached_request_interval_s)
-        elif self.cfg.candidate_request and not link.gave_up and \
-                (urgent or self._candidate_waits_for_dense(link)):
-            interval = 0.0     # a peer that let the last request go unanswered waits it out
+        elif self.cfg.prompt_request and link.prompt and not link.gave_up:
+            # a coarse estimate waits for these points: asked as soon as the peer answers again
+            interval = min(interval, self.agent.cfg.dense_min_interval_s)
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
         link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data)
-        link.last_request_at = now
+        link.last_request_at, link.prompt = now, False
         self._count("requests")
         return self._request_message(link, link.pending)
-
-    def _candidate_waits_for_dense(self, link: PeerLink) -> bool:
-        """A coarse candidate that no request has followed yet (candidate_request)."""
-        cand = link.candidate
-        return (link.confirmed is None and cand is not None and cand.mode != "dense"
-                and link.last_request_at < link.candidate_at)
 
     def _request_message(self, link: PeerLink, p: _PendingRequest) -> DenseRequestMessage:
         link.asked = (link.asked + [p.sequence])[-8:]

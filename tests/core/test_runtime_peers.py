@@ -347,11 +347,12 @@ def test_a_dense_estimate_stands_for_the_coarse_candidate_it_agrees_with(model, 
     assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
 
 
-def test_a_coarse_candidate_asks_for_the_dense_estimate_that_confirms_it_at_once(model, graphs):
-    """candidate_request: only a dense estimate confirms a coarse candidate, so it is asked for
-    within the search interval, once per candidate; without it the link waits the interval
+def test_a_coarse_candidate_asks_for_the_dense_estimate_that_confirms_it_promptly(model, graphs):
+    """prompt_request: only a dense estimate confirms a coarse candidate, so it is asked for as
+    soon as the peer answers again (dense_min_interval_s, 1 s, after the last request), not
+    after the search interval (2 s), once per candidate; without it the link waits the interval
     out, each coarse estimate meanwhile awaiting confirmation."""
-    def coarse_candidate(cfg):
+    def coarse_candidate(cfg, at):
         a, b, reg, _ = make_agents(model, graphs, cfg)
         _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
         shipped = reg._dense_cfg
@@ -359,31 +360,35 @@ def test_a_coarse_candidate_asks_for_the_dense_estimate_that_confirms_it_at_once
             shipped.pose.verdict, min_objects=10_000)))          # dense estimates are refused
         assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
             == "too_few_objects"
-        drift(b, graphs, 2, 1.0)
-        est, req = reg.on_coarse(b.coarse_message(2), now=1.0)
+        drift(b, graphs, 2, at)
+        est, req = reg.on_coarse(b.coarse_message(2), now=at)
         assert est.reason == "awaiting_confirmation" and reg.links["b"].candidate.mode == "coarse"
         return b, reg, req, shipped
 
-    for at_once in (True, False):
-        b, reg, req, shipped = coarse_candidate(PeersConfig(candidate_request=at_once,
-                                                            coarse_with_dense=False))
+    for prompt, at in ((True, 1.0), (True, 0.6), (False, 1.0)):
+        b, reg, req, shipped = coarse_candidate(PeersConfig(prompt_request=prompt,
+                                                            coarse_with_dense=False), at)
         reg._dense_cfg = shipped
-        now = 1.2
-        if not at_once:
+        if prompt and at < 1.0:
+            # the peer answers one request per second: asked on the tick once it would
+            assert req is None and reg.on_tick(0.9) == []
+            [req] = reg.on_tick(1.0)
+        if not prompt:
             assert req is None and reg.on_tick(1.5) == []       # the search interval holds it
             assert reg.on_coarse(b.coarse_message(3), now=1.9)[0].reason == "awaiting_confirmation"
-            [req], now = reg.on_tick(2.0), 2.2
+            [req] = reg.on_tick(2.0)
         assert req is not None and reg.counters["requests"] == 2
-        est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=now)
+        est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.2)
         assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
     # once per candidate: after its request was answered (refused), new coarse graphs that
-    # agree with it wait for the interval
-    b, reg, req, _ = coarse_candidate(PeersConfig(coarse_with_dense=False))
+    # agree with it wait for the search interval
+    b, reg, req, _ = coarse_candidate(PeersConfig(coarse_with_dense=False), 1.0)
     assert reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.2).reason \
         == "too_few_objects"
-    drift(b, graphs, 3, 1.5, dx=0.03)
-    est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
+    drift(b, graphs, 3, 2.5, dx=0.03)
+    est, req = reg.on_coarse(b.coarse_message(3), now=2.5)
     assert est.reason == "awaiting_confirmation" and req is None and reg.counters["requests"] == 2
+    assert reg.on_tick(2.9) == [] and len(reg.on_tick(3.0)) == 1
 
 
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
@@ -463,12 +468,12 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
     # the coarse estimate passes the verdict with no points to check it on: they are asked for
-    # at once (candidate_request), and their dense answer answers the query
+    # at once (prompt_request), and their dense answer answers the query
     assert est is None and req is not None
     assert reg.counters["kept_dropped"] == 1 and reg.counters["deferred_to_dense"] == 2
-    # without candidate_request: new points are asked for after the search interval (2 s), not
+    # without prompt_request: new points are asked for after the search interval (2 s), not
     # the confirmed link's (5 s), and the same two graphs may be asked again
-    a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(candidate_request=False))
+    a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(prompt_request=False))
     b.set_graph(jumped, 2, 1.5)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
@@ -575,8 +580,10 @@ def test_silent_peer_retries_with_backoff_then_gives_up(model, graphs):
     assert reg.on_tick(7.0) == []            # gives up instead of a third retry
     assert reg.counters["request_gave_up"] == 1 and reg.counters["request_retry"] == 2
     assert any("giving up" in line for line in logs)
-    # a new request only after the minimum interval since giving up
+    # a new request only after the minimum interval since giving up, even for a coarse estimate
+    # that passes the verdict with no points to check it on (prompt_request does not hurry it)
     assert reg.on_coarse(b.coarse_message(2), now=8.0)[1] is None
+    assert reg.links["b"].prompt and reg.links["b"].gave_up
     assert reg.on_coarse(b.coarse_message(3), now=12.5)[1] is not None
 
 
@@ -650,6 +657,19 @@ def test_an_unanswered_request_is_asked_again(model, graphs):
     assert again.sequence != req.sequence
 
 
+def test_a_late_answer_to_a_retried_request_answers_it(model, graphs):
+    """On a slow link the answer to a request's first sending can arrive after its retry went
+    out: it answers the request (nothing is left pending to give up on)."""
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(request_timeout_s=0.5, max_retries=1))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    [retry] = reg.on_tick(0.5)
+    assert retry.sequence != req.sequence
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.7)
+    link = reg.links["b"]
+    assert link.pending is None and link.dense_cloud is not None
+    assert reg.on_tick(5.0) == [] and reg.counters["request_gave_up"] == 0 and not link.gave_up
+
+
 def test_own_map_change_is_estimated_against_a_quiet_peer(model, graphs):
     a, b, reg, _ = make_agents(model, graphs)
     reg.on_coarse(b.coarse_message(1), now=0.0)
@@ -709,6 +729,22 @@ def test_a_peer_other_agents_place_is_searched_rarely(model, graphs):
         assert (req is not None) == asks, (attached, placed)
 
 
+def test_a_peer_other_agents_place_is_not_asked_promptly(model, graphs):
+    """prompt_request hurries a new coarse candidate's dense request, but not to a peer that
+    other agents' links place (its interval is attached_request_interval_s)."""
+    for placed in (set(), {"b"}):
+        a, b, reg, _ = make_agents(model, graphs, PeersConfig(attached_request_interval_s=30.0))
+        reg.attached, reg.placed = {"b"}, placed
+        _, first = reg.on_coarse(b.coarse_message(1), now=0.0)
+        reg.on_dense(b.dense_message(1, first.node_ids, "a", first.sequence), now=0.5)
+        link = reg.links["b"]
+        link.candidate = link.confirmed = link.kept = None   # still searching: no link of a's own
+        drift(b, graphs, 5, 1.5)
+        est, req = reg.on_coarse(b.coarse_message(2), now=1.5)
+        assert est.reason == "awaiting_confirmation" and link.candidate.mode == "coarse"
+        assert (req is not None) == (not placed), placed
+
+
 def test_kept_correspondences_go_when_the_peer_levels_its_map_anew(model, graphs):
     from scipy.spatial.transform import Rotation
 
@@ -745,7 +781,8 @@ def test_dense_answers_are_rate_limited_per_requester_and_overall(model, graphs)
     assert ask("a", 10.0)[0] is not None
     msg, why = ask("a", 10.5)
     assert msg is None and "within" in why and b.counters["request_rate_limited"] == 1
-    assert ask("a", 10.0 + 0.9999)[0] is not None          # the requester's 1 Hz timer, jittered
-    assert ask("c", 11.0)[0] is not None                  # another requester: its own interval
-    msg, why = ask("d", 11.0)                             # but not past the budget of all
+    assert ask("a", 10.85)[0] is None                      # more than a tenth early
+    assert ask("a", 10.0 + 0.95)[0] is not None            # the requester's 1 Hz timer, jittered
+    assert ask("c", 10.96)[0] is not None                 # another requester: its own interval
+    msg, why = ask("d", 10.97)                            # but not past the budget of all
     assert msg is None and b.counters["request_over_budget"] == 1
