@@ -461,8 +461,9 @@ class Peers:
             return None, request
         est = self._judge(link, reg, msg.digest, timings, t0, now)
         cand = link.candidate
-        if (self.cfg.confirm_with_dense and est.reason == "awaiting_confirmation" and cand is not None
-                and cand.mode != "dense" and link.candidate_at == now):
+        if (self.cfg.prompt_request and self.cfg.confirm_with_dense and cand is not None
+                and est.reason == "awaiting_confirmation" and cand.mode != "dense"
+                and link.candidate_at == now):
             link.prompt = True    # a new coarse candidate: only a dense estimate confirms it
             request = request or self._send_wanted(link, now)
         return est, request
