@@ -460,12 +460,8 @@ class Peers:
             self._count("deferred_to_dense")
             return None, request
         est = self._judge(link, reg, msg.digest, timings, t0, now)
-        cand = link.candidate
-        if (self.cfg.prompt_request and self.cfg.confirm_with_dense and cand is not None
-                and est.reason == "awaiting_confirmation" and cand.mode != "dense"
-                and link.candidate_at == now):
-            link.prompt = True    # a new coarse candidate: only a dense estimate confirms it
-            request = request or self._send_wanted(link, now)
+        if self.cfg.prompt_request and link.prompt and request is None:
+            request = self._send_wanted(link, now)    # the estimate made a coarse candidate
         return est, request
 
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
@@ -785,6 +781,8 @@ class Peers:
         if cand is None or not self._agree(hyp.T, cand.T):
             link.candidate, link.candidate_at = hyp, now
             cand = None
+            if hyp.mode != "dense" and self.cfg.confirm_with_dense:
+                link.prompt = True    # only a dense estimate confirms a coarse candidate
         if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
