@@ -8,11 +8,13 @@ import json
 import tempfile
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import psutil
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from sgreg_msgs.msg import RegistrationResult
 from tf2_msgs.msg import TFMessage
@@ -21,7 +23,7 @@ from sgreg_core.bench.bandwidth import BandwidthMeter
 from sgreg_core.bench.replay_score import ResultRecord
 from sgreg_core.runtime.auth import init_keystore
 from sgreg_ros.convert import transform_from_msg
-from sgreg_ros.qos import RESULTS, TF
+from sgreg_ros.qos import DIAGNOSTICS, RESULTS, TF
 
 from . import processes
 from .bags import BagError, message_class, open_bag, play_bag, qos_for
@@ -64,7 +66,9 @@ class ReplayRun:
     events: list     # (t, what) e.g. a restart
     bag_end_s: float = 0.0   # when the last message was played (t of the timeline)
     tf: dict = field(default_factory=dict)   # child frame -> (parent frame, 4x4), last on /tf
-    counters: dict = field(default_factory=dict)   # agent -> its last published counter table
+    # agent -> its two nodes' last counter tables, summed: the registration node's (on each
+    # result) and the agent node's (on /diagnostics: the dense requests it refused to answer)
+    counters: dict = field(default_factory=dict)
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -136,7 +140,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
     timeline = []
     t0 = time.monotonic()
 
-    counters: dict = {}
+    counters: dict = {}          # agent -> the registration node's last table
+    agent_counters: dict = {}    # agent -> the agent node's last table
 
     def on_result(msg: RegistrationResult):
         timing = dict(zip(msg.timing_names, msg.timing_ms))
@@ -151,6 +156,13 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                                               "ambiguity": float(msg.ambiguity)},
                                     link=msg.link))
 
+    def on_diagnostics(msg: DiagnosticArray):
+        for status in msg.status:
+            if status.name == f"/{status.hardware_id}/agent":
+                agent_counters[status.hardware_id] = {kv.key: int(kv.value) for kv in status.values
+                                                      if kv.value.lstrip("-").isdigit()}
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, DIAGNOSTICS)
     tf: dict = {}
 
     def on_tf(msg: TFMessage):
@@ -243,7 +255,9 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                      bytes_per_topic=dict(meter.totals), processes=sampler.report(),
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
-                     timeline=timeline, events=events, bag_end_s=bag_end, tf=tf, counters=counters)
+                     timeline=timeline, events=events, bag_end_s=bag_end, tf=tf,
+                     counters={a: dict(Counter(counters.get(a, {})) + Counter(agent_counters.get(a, {})))
+                               for a in names})
 
 
 def ground_truth_of(bag: str | Path) -> dict:

@@ -103,10 +103,11 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
         from sgreg_core.bench.offline_replay import offline_replay
 
         maps = instance_maps_in_bag(job.path, gt.get("t_origin", 0.0))
-        records = offline_replay(maps, model, _offline_config(args.overrides))
+        counters: dict = {}
+        records = offline_replay(maps, model, _offline_config(args.overrides), counters=counters)
         score = score_replay(records, gt["T_scene_map"], gt.get("objects"))
         return replay_report(job.path, score, None, {"backend": "offline"},
-                             merge=merge_report(records, gt["T_scene_map"])[1])
+                             merge=merge_report(records, gt["T_scene_map"])[1], counters=counters)
     from ..replay import ReplayConfig, run_replay
 
     # a short tail: a suite scores registration; `sgreg replay` measures the quiet link

@@ -13,9 +13,12 @@ peers need no more dense data.
 
 Public API:
     OfflineReplayConfig
-    offline_replay(maps, model, cfg, log, merges=None) -> list[ResultRecord]
+    offline_replay(maps, model, cfg, log, merges=None, counters=None) -> list[ResultRecord]
         maps: (t, agent, InstanceMap) map snapshots in time order (t in bag seconds);
-        merges: a dict, filled with each agent's last MergeResult
+        merges: a dict, filled with each agent's last MergeResult;
+        counters: a dict, filled with each agent's counters (one table for its AgentCore and
+            Peers: the requests it sent, retried and gave up beside those it refused to
+            answer), what the two nodes of an agent report between them
 """
 from __future__ import annotations
 
@@ -62,7 +65,7 @@ def _over_the_wire(msg: GraphMessage, encoding: int) -> GraphMessage:
 
 def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel,
                    cfg: OfflineReplayConfig | None = None, log=lambda s: None,
-                   merges: dict | None = None) -> list[ResultRecord]:
+                   merges: dict | None = None, counters: dict | None = None) -> list[ResultRecord]:
     """Every estimate every agent makes while the maps arrive, as replay records (t and bag_t
     both in bag seconds)."""
     cfg = cfg or OfflineReplayConfig()
@@ -132,6 +135,9 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
         for name, m in mergers.items():
             m.update(end)
             merges[name] = m.result
+    if counters is not None:
+        for name in names:
+            counters[name] = dict(agents[name].counters)
     return records
 
 

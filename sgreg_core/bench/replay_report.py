@@ -17,10 +17,12 @@ FLEET_REFUSALS = ("unsigned", "bad_signature", "unknown_key", "key_not_agents", 
 
 
 def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0,
-                  merge: dict | None = None) -> dict:
+                  merge: dict | None = None, counters: dict | None = None) -> dict:
     """The JSON report of one replay: the score (every frame, registrability, links), the merged
-    frame (bench/merge_score.py) and, from a replay through real nodes (run_), traffic (per
+    frame (bench/merge_score.py), each agent's counters (refusals, requests, confirmations: from
+    the offline replay, or run_'s) and, from a replay through real nodes (run_), traffic (per
     agent, during the bag and once the maps are static), node load and played messages."""
+    counters = run_.counters if run_ is not None else (counters or {})
     report = {
         "bag": str(bag),
         "query_frames": score.query_frames,
@@ -40,6 +42,7 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
         "coarse_latency_ms": score.coarse_latency_ms,
         "dense_latency_ms": score.dense_latency_ms,
         "merge": merge,
+        "counters": counters,
         "config": config or {},
         "frames": score.to_dict()["frames"],
     }
@@ -55,10 +58,8 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
             "corrupted_messages": [{"topic": t, "index": i, "error": e} for t, i, e in run_.corrupted],
             "duration_s": run_.duration_s,
             "events": [{"t": t, "what": w} for t, w in run_.events],
-            # each agent's counters as its last result carried them (refusals, confirmations)
-            "counters": run_.counters,
             "refused_from_fleet": {a: {k: v for k, v in c.items() if k in FLEET_REFUSALS and v}
-                                   for a, c in run_.counters.items()},
+                                   for a, c in counters.items()},
             # the link once the maps stopped changing (after the bag and settle_s more)
             "after_bag": {"window_s": max(quiet[1] - quiet[0], 0.0),
                           "bytes_per_s": per_agent_rate(run_.timeline, *quiet) if quiet[1] > quiet[0] else {}},

@@ -34,6 +34,7 @@ Public API:
 from __future__ import annotations
 
 import re
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +140,12 @@ def load_suite(path: str | Path) -> Suite:
 
 
 # ---- summary --------------------------------------------------------------------------------
+# what the suite reports of dense requests -> the runtime counter that counts it
+REQUEST_COUNTERS = {"sent": "requests", "retried": "request_retry", "gave_up": "request_gave_up",
+                    "refused_within_interval": "request_rate_limited",
+                    "refused_over_budget": "request_over_budget"}
+
+
 def _median(values) -> float | None:
     v = [x for x in values if x is not None and np.isfinite(x)]
     return float(np.median(v)) if v else None
@@ -168,7 +175,21 @@ def _row(results: list[dict]) -> dict:
         "kb_per_query_frame": _median(kb),
         "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
         "dense_latency_ms": _median(r["dense_latency_ms"]["median"] for r in results),
+        "dense_requests": _requests(results),
     }
+
+
+def _requests(results: list[dict]) -> dict | None:
+    """Dense requests over the bags, from every agent's counters: sent, retried, given up after
+    every retry, and refused by the answering agent (within its interval of the requester's last
+    answer, or over its answer budget); None where no bag reports counters (an older cache)."""
+    tables = [c for r in results for c in (r.get("counters") or {}).values()]
+    if not tables:
+        return None
+    total = Counter()
+    for table in tables:
+        total.update(table)
+    return {name: int(total[key]) for name, key in REQUEST_COUNTERS.items()}
 
 
 def summarize(results: dict[str, dict], suite: Suite) -> dict:
@@ -223,7 +244,14 @@ def format_summary(summary: dict) -> str:
 
     per_bag = format_table(HEADER, [_cells(n, r) for n, r in summary["bags"].items()])
     overall = format_table(HEADER, [_cells(n, r) for n, r in summary["rows"].items()])
-    return f"{per_bag}\n\nsuite {summary['suite']}:\n{overall}"
+    text = f"{per_bag}\n\nsuite {summary['suite']}:\n{overall}"
+    req = summary["rows"]["all"].get("dense_requests")
+    if req:
+        text += (f"\n\ndense requests: {req['sent']} sent, {req['retried']} retried, {req['gave_up']} "
+                 f"given up after every retry; refused by the answering agent: "
+                 f"{req['refused_within_interval']} within its interval, {req['refused_over_budget']} "
+                 "over its budget")
+    return text
 
 
 def reliability(frames: list[dict], bins: int = 10) -> dict:

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from sgreg_core.bench.replay_suite import SuiteError, load_suite, reliability, summarize
+from sgreg_core.bench.replay_suite import SuiteError, format_summary, load_suite, reliability, summarize
 
 
 def write(tmp_path, text):
@@ -89,6 +89,21 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
                                                           f"held_out: [{suite.jobs[-1].room}]")))
     rows = summarize(results, synth_held)["rows"]
     assert rows["the other scenes"]["registrable_frames"] == 2 and "rooms seen in training" not in rows
+    assert s["rows"]["all"]["dense_requests"] is None      # no bag reports counters
     rel = reliability([f for r in results.values() for f in r["frames"]], bins=2)
     assert rel["n"] == 5 and rel["bins"][0]["n"] == 2 and rel["bins"][1]["n"] == 3
     assert np.isclose(rel["bins"][1]["correct"], 2 / 3)
+
+
+def test_summary_adds_up_dense_requests_over_agents_and_bags(tmp_path):
+    suite = load_suite(write(tmp_path, SUITE))
+    one, two = suite.jobs[0].name, suite.jobs[-1].name
+    results = {one: report([frame(True, True, True, 0.9)], 0, {}), two: report([], 0, {})}
+    results[one]["counters"] = {"a": {"requests": 3, "request_retry": 1, "request_rate_limited": 2},
+                                "b": {"requests": 4, "request_over_budget": 1, "verified": 9}}
+    results[two]["counters"] = {"a": {"requests": 1, "request_gave_up": 1}}
+    s = summarize(results, suite)
+    assert s["rows"]["all"]["dense_requests"] == {"sent": 8, "retried": 1, "gave_up": 1,
+                                                  "refused_within_interval": 2, "refused_over_budget": 1}
+    assert s["bags"][two]["dense_requests"]["sent"] == 1
+    assert "dense requests: 8 sent, 1 retried, 1 given up" in format_summary(s)

@@ -45,12 +45,15 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert (out / "summary.png").stat().st_size > 10_000
     assert json.loads((out / "config.json").read_text())["weights_id"]
     assert "success (registrable)" in stdout and "suite tiny" in stdout
+    assert row["dense_requests"]["sent"] > 0 and "dense requests:" in stdout
 
     again = bench(suite, out)                     # nothing changed: every result is cached
     assert again.count(": cached") == 2
     # the offline backend replays the same bags in-process; --set changes its settings
     offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false")
-    assert "suite tiny" in offline
+    assert "suite tiny" in offline and "dense requests:" in offline
+    off = json.loads((tmp_path / "off" / "results.json").read_text())["rows"]["all"]["dense_requests"]
+    assert off["sent"] > 0 and off["sent"] >= off["retried"]
     bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "peers.confirm=false"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "offline" in bad.stderr

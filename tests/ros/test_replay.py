@@ -35,6 +35,11 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
     assert {"a/agent", "a/registration", "b/agent", "b/registration"} <= set(report["nodes"])
     # signed messages of the fleet all checked on the other side, results included
     assert set(report["counters"]) == {"a", "b"}
+    # each agent's two nodes: the registration node's requests, the agent node's (on
+    # /diagnostics) coarse graphs sent and dense requests answered
+    assert all(report["counters"][a]["coarse_sent"] > 0 for a in "ab")
+    assert sum(report["counters"][a].get("dense_sent", 0) for a in "ab") > 0
+    assert sum(report["counters"][a].get("requests", 0) for a in "ab") > 0
     assert not any(report["refused_from_fleet"].values()), report["refused_from_fleet"]
 
 
