@@ -21,9 +21,10 @@ from tf2_msgs.msg import TFMessage
 
 from sgreg_core.bench.bandwidth import BandwidthMeter
 from sgreg_core.bench.replay_score import ResultRecord
-from sgreg_core.runtime.auth import init_keystore
+from sgreg_core.runtime.auth import AuthConfig, init_keystore
 from sgreg_ros.convert import transform_from_msg
 from sgreg_ros.qos import DIAGNOSTICS, RESULTS, TF
+from sgreg_ros.signing import MessageAuth
 
 from . import processes
 from .bags import BagError, message_class, open_bag, play_bag, qos_for
@@ -66,9 +67,39 @@ class ReplayRun:
     events: list     # (t, what) e.g. a restart
     bag_end_s: float = 0.0   # when the last message was played (t of the timeline)
     tf: dict = field(default_factory=dict)   # child frame -> (parent frame, 4x4), last on /tf
-    # agent -> its two nodes' last counter tables, summed: the registration node's (on each
+    # agent -> its two nodes' last counter tables in one: the registration node's (on each
     # result) and the agent node's (on /diagnostics: the dense requests it refused to answer)
     counters: dict = field(default_factory=dict)
+    # signs of another fleet on the same ROS_DOMAIN_ID (FleetCheck): results on the agents'
+    # topics not from the replay's nodes, left out (unsigned, unknown_key, ...), and other
+    # publishers of the agents' maps
+    foreign: dict = field(default_factory=dict)
+
+
+class FleetCheck:
+    """Whether another fleet shares the replay's ROS_DOMAIN_ID (a test run, a second replay:
+    agents of the same names), counted in `foreign` by what gave it away.
+    take(msg, agent): whether a result on /<agent>/sgreg/registration comes from the nodes the
+        replay started: with a keystore, one signed by the agent's key; without, one that
+        names the agent. Others are left out of the score.
+    look(node, names): another publisher of an agent's mapping/instances than the replay's
+        player: its maps reach the replay's nodes (unsigned: they are the robot's own input)."""
+
+    def __init__(self, keystore: str):
+        self.auth = MessageAuth(AuthConfig(keystore=keystore), None, None) if keystore else None
+        self.foreign: Counter = Counter()
+
+    def take(self, msg, agent: str) -> bool:
+        why = "agent_mismatch" if msg.agent_id != agent else (
+            self.auth.check(msg, f"/{agent}/sgreg/registration", agent) if self.auth else None)
+        if why:
+            self.foreign[why] += 1
+        return why is None
+
+    def look(self, node, names: list[str]) -> None:
+        extra = max(node.count_publishers(f"/{n}/mapping/instances") - 1 for n in names)
+        if extra > 0:
+            self.foreign["other_map_publishers"] = max(self.foreign["other_map_publishers"], extra)
 
 
 def agents_in_bag(bag: str | Path) -> list[str]:
@@ -129,6 +160,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
 
 
 def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) -> ReplayRun:
+    fleet = FleetCheck(overrides.get("keystore", ""))    # a bad keystore fails before any node starts
     procs = processes.start_agents(names, cfg.params_file or processes.DEFAULT_PARAMS, overrides, cfg.log_dir)
     sampler = _Sampler(procs)
     rclpy.init()
@@ -143,7 +175,9 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
     counters: dict = {}          # agent -> the registration node's last table
     agent_counters: dict = {}    # agent -> the agent node's last table
 
-    def on_result(msg: RegistrationResult):
+    def on_result(msg: RegistrationResult, agent: str):
+        if not fleet.take(msg, agent):
+            return
         timing = dict(zip(msg.timing_names, msg.timing_ms))
         counters[msg.agent_id] = dict(zip(msg.counter_names, (int(v) for v in msg.counter_values)))
         records.append(ResultRecord(t=time.monotonic() - t0, agent=msg.agent_id, peer=msg.peer_id,
@@ -177,7 +211,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
         timeline.append((t, topic, len(raw)))
 
     for name in names:
-        node.create_subscription(RegistrationResult, f"/{name}/sgreg/registration", on_result, RESULTS)
+        node.create_subscription(RegistrationResult, f"/{name}/sgreg/registration",
+                                 lambda msg, agent=name: on_result(msg, agent), RESULTS)
         for suffix in CROSS_AGENT:
             topic = f"/{name}{suffix}"
             cls = message_class({"/sgreg/coarse": "sgreg_msgs/msg/CoarseGraph",
@@ -232,6 +267,7 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                 restart = None
             if time.monotonic() - last_sample > 0.5:
                 sampler.sample()
+                fleet.look(node, names)
                 last_sample = time.monotonic()
             if end_at is None and not thread.is_alive():
                 end_at = time.monotonic() + cfg.tail_s
@@ -256,8 +292,9 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
                      played=report.published if report else 0,
                      corrupted=report.corrupted if report else [], duration_s=duration,
                      timeline=timeline, events=events, bag_end_s=bag_end, tf=tf,
-                     counters={a: dict(Counter(counters.get(a, {})) + Counter(agent_counters.get(a, {})))
-                               for a in names})
+                     # both nodes count a refused map: the registration node's count stands
+                     counters={a: {**agent_counters.get(a, {}), **counters.get(a, {})} for a in names},
+                     foreign=dict(fleet.foreign))
 
 
 def ground_truth_of(bag: str | Path) -> dict:

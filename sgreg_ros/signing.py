@@ -21,18 +21,20 @@ class MessageAuth:
     """sign(msg, topic) before publishing; check(msg, topic, agent) -> None or a refusal counter:
     unsigned, stale_message, unknown_key, key_not_agents, bad_signature, or replayed (signed
     no later than the last message of that key taken on that topic). Without a keystore both are no-ops and
-    the node says so once, loudly."""
+    the node says so once, loudly. agent None: check only (a listener that signs nothing; it
+    needs a keystore, and no logger)."""
 
-    def __init__(self, cfg: AuthConfig, agent: str, logger):
+    def __init__(self, cfg: AuthConfig, agent: str | None, logger):
         self.cfg = cfg
-        self.keystore = None
+        self.keystore, self._key = None, None
         self._newest: dict[tuple, int] = {}   # (topic, key) -> signing time of the last message taken
         if not cfg.keystore:
             logger.warning(UNAUTHENTICATED)
             return
         try:
             self.keystore = Keystore(cfg.keystore)
-            self.key_id, self._key = self.keystore.signer(agent)
+            if agent is not None:
+                self.key_id, self._key = self.keystore.signer(agent)
         except KeystoreError as exc:
             raise ParameterError(f"parameter 'keystore': {exc}") from None
 
@@ -44,6 +46,8 @@ class MessageAuth:
 
     def sign(self, msg, topic: str):
         if self.keystore is not None:
+            if self._key is None:
+                raise RuntimeError("MessageAuth made to check only (agent None) cannot sign")
             msg.key_id, msg.signed_ns, msg.signature = self.key_id, time.time_ns(), b""
             msg.signature = sign(self._key, self._payload(msg, topic))
         return msg

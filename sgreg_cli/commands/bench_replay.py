@@ -122,6 +122,7 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sgreg_core.bench.replay_report import foreign_warning
     from sgreg_core.bench.replay_suite import SuiteError, format_summary, load_suite, reliability, summarize
     from sgreg_core.maps.instance_map import InstanceMapError
     from sgreg_core.config import to_dict
@@ -191,7 +192,11 @@ def run(args: argparse.Namespace) -> int:
         except (RuntimeError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2
-        report["cache_key"] = key
+        foreign = report.get("foreign")
+        if foreign:
+            # its nodes may have taken the other fleet's maps: not a result to keep
+            log(f"{i + 1}/{len(jobs)} {job.name}: WARNING {foreign_warning(foreign)}; not cached")
+        report["cache_key"] = None if foreign else key
         path.write_text(json.dumps(report, indent=1, default=float) + "\n")
         results[job.name] = report
         eta = (time.monotonic() - started) / (i + 1) * (len(jobs) - i - 1)
@@ -203,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
     frames = [f for r in results.values() for f in r["frames"]]
     summary["reliability"] = reliability(frames)
     summary["context"] = context
+    summary["foreign"] = {n: r["foreign"] for n, r in results.items() if r.get("foreign")}
     (out / "results.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
     (out / "config.json").write_text(json.dumps({
         "suite": str(Path(args.suite).resolve()), "suite_text": Path(args.suite).read_text(),
@@ -218,4 +224,9 @@ def run(args: argparse.Namespace) -> int:
 
     plot_suite(summary, out / "summary.png")
     print(f"\nresults: {out / 'results.json'}; plot: {out / 'summary.png'}")
+    if summary["foreign"]:
+        print(f"sgreg bench-replay: another fleet shared the DDS domain while {', '.join(summary['foreign'])} "
+              "played: those results are not to be trusted; run again on a free ROS_DOMAIN_ID "
+              "(they are not cached)", file=sys.stderr)
+        return 1
     return 0

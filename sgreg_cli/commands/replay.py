@@ -37,7 +37,8 @@ def run(args) -> int:
     from sgreg_core.bench.bandwidth import HEADER, format_table
     from sgreg_core.bench.merge_score import merge_report
     from sgreg_core.runtime.merge import MergeConfig
-    from sgreg_core.bench.replay_report import PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, replay_report
+    from sgreg_core.bench.replay_report import (PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, foreign_warning,
+                                                replay_report)
     from sgreg_core.bench.replay_score import ground_truth, score_replay
     from sgreg_core.metrics import rre, rte
 
@@ -104,8 +105,11 @@ def run(args) -> int:
         rows.append(["corrupted bag messages skipped", str(len(run_.corrupted))])
     refused = {a: c for a, c in report["refused_from_fleet"].items() if c}
     if refused:
-        rows.append(["fleet messages refused (a bug: see the node logs)",
+        # another fleet's messages are refused too: a bug only when no other fleet was there
+        rows.append(["messages refused by the nodes" + ("" if report["foreign"] else " (a bug: see the node logs)"),
                      "; ".join(f"{a}: {c}" for a, c in sorted(refused.items()))])
+    if report["foreign"]:
+        print(f"sgreg replay: WARNING {foreign_warning(report['foreign'])}", file=sys.stderr)
     print(format_table(["replay", "value"], rows))
     last = {}
     for r in run_.records:

@@ -1,7 +1,7 @@
 """The JSON report of one replay (`sgreg replay`, `sgreg bench-replay`): the score of every frame,
-registrability and links (bench/replay_score.py) and, for a replay through real nodes, traffic,
-node load and played messages. The SG-Reg paper's two-agent figures are carried beside ours
-for scale (other data).
+registrability and links (bench/replay_score.py), the agents' counters and, for a replay through
+real nodes, traffic, node load, played messages and any sign of another fleet on the domain.
+The SG-Reg paper's two-agent figures are carried beside ours for scale (other data).
 """
 from __future__ import annotations
 
@@ -16,12 +16,20 @@ FLEET_REFUSALS = ("unsigned", "bad_signature", "unknown_key", "key_not_agents", 
                   "bad_level", "invalid_values", "bad_points")
 
 
+def foreign_warning(foreign: dict) -> str:
+    """What a replay says when another fleet shared its ROS_DOMAIN_ID (ReplayRun.foreign)."""
+    seen = ", ".join(f"{n} {why}" for why, n in sorted(foreign.items()))
+    return (f"another fleet shares this ROS_DOMAIN_ID ({seen}): its results were left out of the "
+            "score, but its maps may have reached these nodes; replay again on a free ROS_DOMAIN_ID")
+
+
 def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: float = 22.0,
                   merge: dict | None = None, counters: dict | None = None) -> dict:
     """The JSON report of one replay: the score (every frame, registrability, links), the merged
-    frame (bench/merge_score.py), each agent's counters (refusals, requests, confirmations: from
-    the offline replay, or run_'s) and, from a replay through real nodes (run_), traffic (per
-    agent, during the bag and once the maps are static), node load and played messages."""
+    frame (bench/merge_score.py), each agent's counters (refusals, requests, confirmations: run_'s
+    from real nodes, else `counters` from the offline replay) and, from a replay through real
+    nodes (run_), traffic (per agent, during the bag and once the maps are static), node load,
+    played messages and any sign of another fleet on the same DDS domain."""
     counters = run_.counters if run_ is not None else (counters or {})
     report = {
         "bag": str(bag),
@@ -60,6 +68,8 @@ def replay_report(bag, score, run_=None, config: dict | None = None, settle_s: f
             "events": [{"t": t, "what": w} for t, w in run_.events],
             "refused_from_fleet": {a: {k: v for k, v in c.items() if k in FLEET_REFUSALS and v}
                                    for a, c in counters.items()},
+            # another fleet on the domain: results left out, other publishers of the maps
+            "foreign": run_.foreign,
             # the link once the maps stopped changing (after the bag and settle_s more)
             "after_bag": {"window_s": max(quiet[1] - quiet[0], 0.0),
                           "bytes_per_s": per_agent_rate(run_.timeline, *quiet) if quiet[1] > quiet[0] else {}},

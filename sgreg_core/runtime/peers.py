@@ -25,9 +25,9 @@ An estimate that passes the verdict is not yet published as verified. The link t
   arrives while no link is confirmed, the coarse estimate of the same graphs, now verifiable
   on its points, is made beside it, unpublished (coarse_with_dense): the second estimate that
   the next coarse graph would bring, so a right first dense estimate that it agrees with is
-  confirmed at once. Every estimate a first confirmation rests on (the peer's word aside) has
-  at least first_link_min_objects inlier objects. The transform is published from then on,
-  for every estimate that passes the verdict and agrees with the link;
+  confirmed at once. Every estimate of a first confirmation (the one the peer's word confirms
+  too) rests on at least first_link_min_objects inlier objects. The transform is published
+  from then on, for every estimate that passes the verdict and agrees with the link;
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
   becomes the new candidate and nothing is published for that peer until a link is confirmed
@@ -161,12 +161,13 @@ class PeersConfig:
         state of its own (a tie it finds is remembered, as any tie).
     first_link_min_objects: the inlier objects each of the two agreeing estimates of a first
         confirmation needs (and the estimate the peer's word confirms), above the verdict's own
-        minimum for dense estimates (3). Two estimates of two small maps on three objects (a
-        dense one and the coarse one of the same graphs) rest on the same few node matches, so
-        their agreement is not the independent evidence a first link needs: through real
-        nodes, two such estimates of scene0004 agreed on a pose 2.2 m / 6.7 deg off and it was
-        published (docs/VERDICT.md section 3). A candidate on fewer objects gives way to an
-        agreeing estimate on enough. A confirmed link is kept by estimates on fewer.
+        minimum for dense estimates (3). Two estimates of two small maps that share three
+        objects rest on the same few node matches, so their agreement is not the independent
+        evidence a first link needs: through real nodes, a dense estimate on three objects of
+        scene0004 and the coarse estimate of the next graph, on four, agreed on a pose
+        2.2 m / 6.7 deg off and it was published (docs/VERDICT.md section 3). A candidate on
+        fewer objects gives way to an agreeing estimate on enough. A confirmed link is kept by
+        estimates on fewer.
     prompt_request: a coarse estimate that passes the verdict asks for the peer's points as soon
         as the peer answers again (AgentConfig.dense_min_interval_s after the last request, the
         fleet's setting assumed), not after the search interval, when only they can take it
@@ -291,14 +292,14 @@ def _median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np
 @dataclass
 class Hypothesis:
     """An estimate that passed the verdict. T: T_agent^peer; data: what it was made from (own
-    graph digest, peer graph digest, "dense" or "coarse"); kept: its inlier correspondences
-    (peer -> own) when dense; objects: the distinct objects among its inliers."""
+    graph digest, peer graph digest, "dense" or "coarse"); objects: the distinct objects among
+    its inliers; kept: its inlier correspondences (peer -> own) when dense."""
 
     T: np.ndarray
     data: tuple[str, str, str]
     mode: str
+    objects: int
     kept: Kept | None = None
-    objects: int = 0
 
 
 @dataclass
@@ -424,9 +425,14 @@ class Peers:
         two dense estimates from the two sides. A coarse estimate needs the peer's confirmation:
         two agents that each saw one of two identical rooms make the same wrong slide, and in
         the 4-agent building bag a coarse estimate and the peer's unconfirmed dense one agreed on
-        one."""
-        return self._witness_agrees(peer, hyp.T, now, ("confirmed", "dense") if hyp.mode == "dense"
-                                    else ("confirmed",))
+        one. Never an estimate on too few objects for a first link (_enough)."""
+        return self._enough(hyp) and self._witness_agrees(
+            peer, hyp.T, now, ("confirmed", "dense") if hyp.mode == "dense" else ("confirmed",))
+
+    def _enough(self, hyp: Hypothesis) -> bool:
+        """Whether hyp rests on enough inlier objects to take part in a first confirmation
+        (first_link_min_objects)."""
+        return hyp.objects >= self.cfg.first_link_min_objects
 
     def _vouched(self, peer: str, reg: Registration, T: np.ndarray, now: float) -> bool:
         """Whether an estimate that the verdict refused only for its confidence is taken all
@@ -533,7 +539,7 @@ class Peers:
         if not reg.success or reg.node_matches < self.cfg.min_coarse_matches:
             return None
         return Hypothesis(self._own_to_peer(reg, msg), (self.agent.digest, msg.digest, "coarse"), "coarse",
-                          objects=reg.evidence.objects)
+                          reg.evidence.objects)
 
     def on_tick(self, now: float) -> list[DenseRequestMessage]:
         """Requests the interval held back, retries of unanswered ones (with back-off), and
@@ -722,8 +728,8 @@ class Peers:
                 kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
                             _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R)
             kind = "dense" if reg.mode == "dense" else "coarse"
-            hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, kept,
-                             reg.evidence.objects)
+            hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,
+                             kept)
             reason = self._link_rules(link, reg, hyp, now, beside)
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
@@ -798,32 +804,33 @@ class Peers:
             cand = None
             if hyp.mode != "dense" and self.cfg.confirm_with_dense:
                 link.prompt = True    # only a dense estimate confirms a coarse candidate
-        enough = hyp.objects >= self.cfg.first_link_min_objects
-        if enough and self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
+        if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
         # the estimates from other data that agree with hyp: the link's candidate (still set
         # only when hyp agrees with it) and the unpublished one beside this query
-        # (coarse_with_dense)
+        # (coarse_with_dense), each on enough objects, as hyp
         seconds = [o for o in (cand, beside) if o is not None and self._agree(hyp.T, o.T)
-                   and self._independent(o, hyp) and o.objects >= self.cfg.first_link_min_objects]
-        if not enough:
-            seconds = []
+                   and self._independent(o, hyp) and self._enough(o) and self._enough(hyp)]
         if seconds and self._held_long(link, now):
             if not (self.cfg.tie_memory_s > 0 and now - link.tie_at <= self.cfg.tie_memory_s):
                 self._confirm(link, hyp, "confirmed", kept_from=hyp if hyp.kept is not None else seconds[0])
                 return "ok"
             self._count("held_by_tie")    # a tie was seen: only the peer's word confirms
-        k = self.cfg.first_link_min_objects
-        if cand is not None and ((hyp.mode == "dense" and cand.mode != "dense"
-                                  and not hyp.objects < k <= cand.objects)
-                                 or cand.objects < k <= hyp.objects):
+        if cand is None:
+            return "awaiting_confirmation"
+        if self._enough(hyp) and not self._enough(cand):
+            # an estimate on enough objects stands for a candidate on too few (keeping its dense
+            # inliers); a coarse one then waits for a dense estimate, as a new candidate would
+            link.candidate = hyp if hyp.kept is not None else replace(hyp, kept=cand.kept)
+            if hyp.mode != "dense" and self.cfg.confirm_with_dense:
+                link.prompt = True
+        elif hyp.mode == "dense" and cand.mode != "dense" and (self._enough(hyp) or not self._enough(cand)):
             # the dense estimate stands for the coarse candidate it agrees with (while the hold
             # or a tie keeps it from confirming): the coarse graphs to come are other data for
-            # it, not for the candidate they may repeat, and it brings its inliers to keep. So
-            # does an estimate on enough objects for a candidate on too few, never the reverse.
+            # it, not for the candidate they may repeat, and it brings its inliers to keep
             link.candidate = hyp
-        elif cand is not None and cand.kept is None:   # no confirmation, but keep dense inliers
+        elif cand.kept is None:   # no confirmation, but keep dense inliers
             cand.kept = hyp.kept
         return "awaiting_confirmation"
 

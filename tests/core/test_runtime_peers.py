@@ -119,7 +119,7 @@ def test_the_coarse_estimate_beside_a_dense_one_confirms_it_or_nothing(model, gr
 
         def beside(*args):
             hyp = made(*args)
-            return None if hyp is None else Hypothesis(invert_transform(off), hyp.data, hyp.mode)
+            return None if hyp is None else replace(hyp, T=invert_transform(off))
         reg._coarse_beside = beside
 
     # a wrong coarse estimate beside each answer: the dense candidate stands, and the next
@@ -179,37 +179,51 @@ def resting_on(reg, objects):
 
 
 def test_a_first_link_needs_its_estimates_on_enough_objects(model, graphs):
-    """A dense estimate on three objects of two small maps, and the coarse estimate of the same
-    graphs, rest on the same few node matches: through real nodes they agreed on a pose 2 m off
-    (real suite, scene0004). Neither confirms a first link below first_link_min_objects, nor
-    does the peer's word; an agreeing estimate on enough objects takes the candidate's place,
-    and the next one from other data confirms it."""
+    """A dense estimate on three objects of two small maps and the coarse estimate of the next
+    graph rest on the same few node matches: through real nodes they agreed on a pose 2 m off
+    (real suite, scene0004). Below first_link_min_objects (4) neither confirms a first link,
+    nor does the peer's word, heard before or after; an agreeing estimate on enough objects
+    takes the candidate's place, and the next one from other data confirms it."""
     from sgreg_core.geometry import invert_transform
+    peer_word = invert_transform(T_GT)
     a, b, reg, _ = make_agents(model, graphs)
-    resting_on(reg, [2])
-    reg.on_peer_result("b", invert_transform(T_GT), True, "dense", "ok", "confirmed", now=0.0)
+    resting_on(reg, [3])
+    reg.on_peer_result("b", peer_word, True, "dense", "ok", "confirmed", now=0.0)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     est = reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
     assert est.reason == "awaiting_confirmation" and reg.counters["coarse_with_dense"] == 1
+    reg.on_peer_result("b", peer_word, False, "dense", "awaiting_confirmation", "candidate", now=0.6)
+    reg.on_peer_result("b", peer_word, True, "dense", "ok", "confirmed", now=0.7)
+    assert reg.links["b"].state == "candidate"
     assert reg.counters["confirmed"] == reg.counters["confirmed_by_peer"] == 0
-    # the same estimates with the rule at its floor confirm at once
-    a, b, reg, _ = make_agents(model, graphs, PeersConfig(first_link_min_objects=1))
-    resting_on(reg, [2])
+    # the same estimates with the rule at the verdict's own minimum confirm at once
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(first_link_min_objects=3))
+    resting_on(reg, [3])
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).verified
-    # a candidate on too few objects gives way to an agreeing estimate on enough
+    # a candidate on too few objects gives way to an agreeing estimate on enough, never the
+    # reverse
     a, b, reg, _ = make_agents(model, graphs, PeersConfig(min_request_interval_s=0.0, coarse_with_dense=False))
-    objects = [2]
+    objects = [3]
     resting_on(reg, objects)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).reason \
         == "awaiting_confirmation"
     objects[0] = None
     drift(b, graphs, 2, 1.0)
-    est = reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=1.0)
-    assert est.reason == "awaiting_confirmation" and reg.links["b"].candidate.objects >= 4
+    est, asked = reg.on_coarse(b.coarse_message(2), now=1.0)
+    cand = reg.links["b"].candidate
+    assert est.reason == "awaiting_confirmation" and cand.mode == "coarse" and cand.objects >= 4
+    # it keeps the dense inliers, and asks for points at once (prompt_request), not in 2 s
+    assert cand.kept is not None and asked is not None
+    objects[0] = 3
     drift(b, graphs, 3, 2.0)
-    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.0).reason \
+        == "awaiting_confirmation"
+    assert reg.links["b"].candidate is cand
+    objects[0] = None
+    drift(b, graphs, 4, 3.0)
+    est = reg.on_dense(b.dense_message(3, req.node_ids, "a", req.sequence), now=3.0)
     assert est.verified and rte(est.T, T_GT) < 0.2, est.reason
 
 
@@ -266,15 +280,15 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
     # a coarse estimate needs b's confirmed link, not just its dense estimate
     a, b, reg, _ = make_agents(model, graphs, alone)
     reg.on_peer_result("b", T_ba, False, "dense", "ok", "candidate", now=0.0)
-    assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5)
-    assert reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "dense"), "dense"), "b", 0.5)
+    assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse", 10), "b", 0.5)
+    assert reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "dense"), "dense", 10), "b", 0.5)
     # a link b gives up (contradicted, disputed by its cycles, no longer confirmed) is taken back
     for reason, link_state in (("contradicted", "candidate"), ("disputed_by_cycles", "confirmed"),
                                ("too_few_inliers", "none")):
         a, b, reg, _ = make_agents(model, graphs, alone)
         reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
         reg.on_peer_result("b", off, False, "coarse", reason, link_state, now=0.1)
-        assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse"), "b", 0.5), reason
+        assert not reg._witnessed(Hypothesis(T_GT, ("a1", "b1", "coarse"), "coarse", 10), "b", 0.5), reason
     a, b, reg, _ = make_agents(model, graphs, replace(alone, confirm_with_peer=False))
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     reg.on_peer_result("b", T_ba, True, "dense", "ok", "confirmed", now=0.4)
@@ -439,13 +453,13 @@ def test_a_coarse_candidate_asks_for_the_dense_estimate_that_confirms_it_promptl
 def test_two_coarse_estimates_alone_do_not_confirm(model, graphs):
     """Successive coarse graphs share most node matches: one of the two must be dense."""
     T = np.eye(4)
-    coarse1 = Hypothesis(T, ("a1", "b1", "coarse"), "coarse")
-    coarse2 = Hypothesis(T, ("a1", "b2", "coarse"), "coarse")
-    dense = Hypothesis(T, ("a1", "b2", "dense"), "dense")
+    coarse1 = Hypothesis(T, ("a1", "b1", "coarse"), "coarse", 10)
+    coarse2 = Hypothesis(T, ("a1", "b2", "coarse"), "coarse", 10)
+    dense = Hypothesis(T, ("a1", "b2", "dense"), "dense", 10)
     reg = make_agents(model, graphs)[2]
     assert not reg._independent(coarse1, coarse2)
     assert reg._independent(coarse1, dense) and reg._independent(dense, coarse1)
-    assert not reg._independent(dense, Hypothesis(T, dense.data, "dense"))
+    assert not reg._independent(dense, Hypothesis(T, dense.data, "dense", 10))
     lenient = make_agents(model, graphs, PeersConfig(confirm_with_dense=False))[2]
     assert lenient._independent(coarse1, coarse2)
 
