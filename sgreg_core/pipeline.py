@@ -414,7 +414,8 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     if coarse_retry and res.reason in COARSE_PAIRS_AFTER and res.candidates:
         t_pairs = time.perf_counter()
         second = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
-                               replace(pose_cfg, pair_hypotheses=cfg.coarse_pairs), groups=groups)
+                               replace(pose_cfg, pair_hypotheses=cfg.coarse_pairs), groups=groups,
+                               hypotheses=res.hypotheses)
         if second.success:
             res = second
         pose_ms["pairs"] = 1e3 * (time.perf_counter() - t_pairs)

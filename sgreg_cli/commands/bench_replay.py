@@ -123,7 +123,8 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from sgreg_core.bench.replay_report import foreign_warning
-    from sgreg_core.bench.replay_suite import SuiteError, format_summary, load_suite, reliability, summarize
+    from sgreg_core.bench.replay_suite import (ResultCache, SuiteError, format_summary, load_suite,
+                                               reliability, summarize)
     from sgreg_core.maps.instance_map import InstanceMapError
     from sgreg_core.config import to_dict
     from .make_bag import BagSpecError
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"sgreg bench-replay: no bag of {suite.name} matches {args.only}", file=sys.stderr)
         return 2
     out = Path(args.out or f"results/bench_replay_{suite.name}" + ("_offline" if args.backend == "offline" else ""))
-    (out / "bags").mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
 
     def log(s: str) -> None:
         print(f"[bench-replay] {s}", flush=True)
@@ -174,30 +175,26 @@ def run(args: argparse.Namespace) -> int:
 
         torch.set_num_threads(1)   # as each node runs
         model.text_encoder.encode(["object"])
+    cache = ResultCache(out / "bags")
     results: dict[str, dict] = {}
     started = time.monotonic()
     for i, job in enumerate(jobs):
-        path = out / "bags" / f"{job.name}.json"
         key = hashlib.sha256(json.dumps({**context, "spec": job.spec, "bag": str(job.path)},
                                         sort_keys=True).encode()).hexdigest()[:16]
-        if path.exists() and not args.fresh:
-            cached = json.loads(path.read_text())
-            if cached.get("cache_key") == key:
-                results[job.name] = cached
-                log(f"{i + 1}/{len(jobs)} {job.name}: cached")
-                continue
+        cached = None if args.fresh else cache.load(job.name, key)
+        if cached is not None:
+            results[job.name] = cached
+            log(f"{i + 1}/{len(jobs)} {job.name}: cached")
+            continue
         t0 = time.monotonic()
         try:
             report = _replay(job, args.backend, args, model, out)
         except (RuntimeError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2
-        foreign = report.get("foreign")
-        if foreign:
-            # its nodes may have taken the other fleet's maps: not a result to keep
-            log(f"{i + 1}/{len(jobs)} {job.name}: WARNING {foreign_warning(foreign)}; not cached")
-        report["cache_key"] = None if foreign else key
-        path.write_text(json.dumps(report, indent=1, default=float) + "\n")
+        if report.get("foreign"):
+            log(f"{i + 1}/{len(jobs)} {job.name}: WARNING {foreign_warning(report['foreign'])}; not cached")
+        cache.save(job.name, report, key)
         results[job.name] = report
         eta = (time.monotonic() - started) / (i + 1) * (len(jobs) - i - 1)
         sr = report["success_rate_registrable"]

@@ -30,9 +30,12 @@ Public API:
                                   cross capture, synthetic, each walk; "bags": one row per bag
     format_summary(summary) -> str
     reliability(frames, bins) -> dict    stated confidence against observed correctness
+    ResultCache(folder)           per-bag results kept for the next run, never one another fleet
+                                  took part in
 """
 from __future__ import annotations
 
+import json
 import re
 from collections import Counter
 from dataclasses import dataclass
@@ -72,6 +75,31 @@ class Suite:
     jobs: list[BagJob]
     held_out: tuple[str, ...] = ()
     bag_dir: Path | None = None
+
+
+class ResultCache:
+    """Per-bag results of a suite run, one `<folder>/<bag>.json` each, reused by the next run when
+    made with the same key (bag spec, backend, weights, parameters, source code), so an
+    interrupted run resumes. A result another fleet took part in (`report["foreign"]`: its
+    nodes may have taken that fleet's maps) is written for reading but never reused."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def path(self, name: str) -> Path:
+        return self.folder / f"{name}.json"
+
+    def load(self, name: str, key: str) -> dict | None:
+        try:
+            report = json.loads(self.path(name).read_text())
+        except (OSError, ValueError):
+            return None
+        return report if isinstance(report, dict) and report.get("cache_key") == key else None
+
+    def save(self, name: str, report: dict, key: str) -> None:
+        report["cache_key"] = None if report.get("foreign") else key
+        self.path(name).write_text(json.dumps(report, indent=1, default=float) + "\n")
 
 
 def room_of(path: str | Path) -> str:

@@ -120,6 +120,8 @@ class PoseResult:
     inlier_groups:       the distinct groups (node matches) of the inliers.
     num_correspondences: correspondences left after dropping non-finite ones and NMS.
     candidates:          candidate poses compared.
+    hypotheses:          GNC's and the clique pyramid's poses among them (not the pair poses):
+                         another pass over the same correspondences takes them as they are.
     used_pyramid:        True when GNC's inlier ratio was below the gate.
     clique_sizes:        maximum-clique size per pyramid level (empty without pyramid).
     spread:              m, inlier spread used by the verdict.
@@ -142,6 +144,7 @@ class PoseResult:
     inlier_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     num_correspondences: int = 0
     candidates: int = 0
+    hypotheses: list[np.ndarray] = field(default_factory=list)
     used_pyramid: bool = False
     clique_sizes: list[int] = field(default_factory=list)
     spread: float = 0.0
@@ -250,19 +253,29 @@ def _clique_pyramid(s, r, b, w, deltas, cfg: PoseConfig):
 
 
 def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult,
-                clock: _Clock) -> list[np.ndarray]:
+                clock: _Clock, known: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """GNC over all correspondences, and when its inlier ratio is low one GNC fit per clique of
-    the compatibility pyramid (each re-fitted on everything it calls an inlier)."""
+    the compatibility pyramid (each re-fitted on everything it calls an inlier), kept in
+    result.hypotheses; known: those of an earlier pass, taken instead. Then cfg.pair_hypotheses
+    of the poses two correspondences fix, after GNC's."""
+    if known is None:
+        known = _fitted_hypotheses(s, r, w, b, cfg, gcfg, result, clock)
+    result.hypotheses = list(known)
+    if not known or not cfg.pair_hypotheses:
+        return list(known)
+    pairs = [_refine(s, r, w, b, T, cfg.dof) for T in
+             pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers, cfg.pair_hypotheses)]
+    return known[:1] + pairs + known[1:]
+
+
+def _fitted_hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult,
+                       clock: _Clock) -> list[np.ndarray]:
     gnc = gnc_tls(s, r, b, w, gcfg)
     clock.lap("gnc")
     if not gnc.ok:
         result.reason = gnc.reason
         return []
     candidates = [gnc.T]
-    if cfg.pair_hypotheses:
-        candidates += [_refine(s, r, w, b, T, cfg.dof) for T in
-                       pair_poses(s, r, float(np.median(b)), cfg.verdict.min_inliers,
-                                  cfg.pair_hypotheses)]
     if gnc.inlier_ratio < cfg.gnc_inlier_gate:
         result.used_pyramid = True
         levels = _clique_pyramid(s, r, b, w, cfg.clique_deltas, cfg)
@@ -341,7 +354,8 @@ def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
 
 
 def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None,
-                  cfg: PoseConfig = PoseConfig(), noise_bounds=None, groups=None) -> PoseResult:
+                  cfg: PoseConfig = PoseConfig(), noise_bounds=None, groups=None,
+                  hypotheses: list[np.ndarray] | None = None) -> PoseResult:
     """Estimate T with ref ~ T src from correspondences (src_pts[i], ref_pts[i]) and judge it;
     never raises on bad data.
 
@@ -353,6 +367,8 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
                   covariances; default cfg.noise_bound for all.
     groups:       optional (N,) int, the object (node match) of each correspondence: the
                   verdict counts distinct inlier objects; default each its own.
+    hypotheses:   PoseResult.hypotheses of an earlier pass over the same correspondences (e.g.
+                  one with more pair poses): GNC and the clique pyramid are not run again.
     """
     clock = _Clock()
     src, ref = as_points(src_pts), as_points(ref_pts)
@@ -377,7 +393,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         return result
     s, r, wk, bk, gk = src[keep], ref[keep], w[keep], b[keep], g[keep]
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
-    candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock)
+    candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, hypotheses)
     if not candidates:
         result.timing_ms = clock.done()
         return result

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from sgreg_core.bench.replay_suite import SuiteError, format_summary, load_suite, reliability, summarize
+from sgreg_core.bench.replay_suite import (ResultCache, SuiteError, format_summary, load_suite,
+                                           reliability, summarize)
 
 
 def write(tmp_path, text):
@@ -107,3 +108,16 @@ def test_summary_adds_up_dense_requests_over_agents_and_bags(tmp_path):
                                                   "refused_within_interval": 2, "refused_over_budget": 1}
     assert s["bags"][two]["dense_requests"]["sent"] == 1
     assert "dense requests: 8 sent, 1 retried, 1 given up" in format_summary(s)
+
+
+def test_results_are_reused_only_under_their_key_and_never_with_another_fleet(tmp_path):
+    cache = ResultCache(tmp_path / "bags")
+    cache.save("a", {"query_frames": 3}, "k1")
+    assert cache.load("a", "k1") == {"query_frames": 3, "cache_key": "k1"}
+    assert cache.load("a", "k2") is None and cache.load("b", "k1") is None
+    # a result another fleet took part in is kept for reading, never for the next run
+    cache.save("a", {"query_frames": 4, "foreign": {"publishers": ["/a/mapping/instances"]}}, "k1")
+    assert '"query_frames": 4' in cache.path("a").read_text()
+    assert cache.load("a", "k1") is None
+    cache.path("c").write_text("{not json")
+    assert cache.load("c", "k1") is None
