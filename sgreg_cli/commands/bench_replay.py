@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--only", nargs="+", metavar="TEXT", help="only bags whose name contains one of these")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML of the nodes (default config/sgreg.yaml)")
+    p.add_argument("--seeds", nargs="+", type=int, metavar="N",
+                   help="walk seeds instead of the suite's: new live cases of the same rooms, "
+                   "e.g. to check a change on walks it was not chosen on")
     p.add_argument("--fresh", action="store_true", help="replay every bag even if a result is cached")
     p.add_argument("--make-only", action="store_true", help="make the bags, replay nothing")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -130,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     from .make_bag import BagSpecError
 
     try:
-        suite = load_suite(args.suite)
+        suite = load_suite(args.suite, args.seeds)
     except SuiteError as exc:
         print(f"sgreg bench-replay: {exc}", file=sys.stderr)
         return 2
@@ -210,7 +213,8 @@ def run(args: argparse.Namespace) -> int:
     (out / "config.json").write_text(json.dumps({
         "suite": str(Path(args.suite).resolve()), "suite_text": Path(args.suite).read_text(),
         "backend": args.backend, "weights": args.weights, "weights_id": model.weights_id,
-        "params_file": args.params_file, "only": args.only, "overrides": args.overrides,
+        "params_file": args.params_file, "only": args.only, "seeds": args.seeds,
+        "overrides": args.overrides,
         "offline_config": offline_cfg if args.backend == "offline" else None,
         "jobs": [{"name": j.name, "spec": j.spec, "synth": j.synth, "path": str(j.path)} for j in jobs],
     }, indent=1) + "\n")

@@ -24,7 +24,8 @@ A suite file (see bench/suites/*.yaml):
 Public API:
     BagJob                        one bag of a suite: name, how to make it (or its path), tags
     Suite                         name, jobs, held-out rooms, directories
-    load_suite(path) -> Suite     raises SuiteError with a one-line reason
+    load_suite(path, seeds=None) -> Suite    raises SuiteError with a one-line reason; seeds:
+                                  walk seeds instead of the file's (cases nothing was chosen on)
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
@@ -112,7 +113,7 @@ def _short(scan: str) -> str:
     return m.group(0) if m else Path(scan).name
 
 
-def load_suite(path: str | Path) -> Suite:
+def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
     import yaml
 
     path = Path(path)
@@ -129,7 +130,7 @@ def load_suite(path: str | Path) -> Suite:
     base = path.parent
     data = (base / doc.get("data", ".")).resolve()
     bag_dir = (base / doc.get("bag_dir", f"generated/{path.stem}")).resolve()
-    seeds = list(doc.get("seeds") or [0])
+    seeds = list(seeds or doc.get("seeds") or [0])
     walks = doc.get("walks") or {"default": {}}
     defaults = dict(doc.get("defaults") or {})
     jobs: list[BagJob] = []
