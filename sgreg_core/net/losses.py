@@ -104,12 +104,15 @@ def pair_losses(model: SGRegModel, inp_src: GraphInput, inp_ref: GraphInput,
     l_gnn = node_match_loss(log_dual_softmax(out_src.descriptor, out_ref.descriptor), gt)
     l_con = shape_contrastive_loss(out_src.shape, out_ref.shape, gt, cfg.temperature)
 
-    ia, ib = gt[:, 0], gt[:, 1]
-    moved = inp_src.points[ia] @ T_src_ref[:3, :3].T + T_src_ref[:3, 3]
-    targets = point_gt(moved, inp_src.valid[ia], inp_ref.points[ib], inp_ref.valid[ib],
-                       cfg.pos_radius, cfg.neg_radius)
-    log_p = model.point_matcher.log_transport(out_src.z[ia], inp_src.valid[ia],
-                                              out_ref.z[ib], inp_ref.valid[ib])
-    l_ot = point_match_loss(log_p, targets)
+    if gt.shape[0] == 0:     # no matched node pair to match points in (small, partial views)
+        l_ot = (out_src.z.sum() + out_ref.z.sum()) * 0.0
+    else:
+        ia, ib = gt[:, 0], gt[:, 1]
+        moved = inp_src.points[ia] @ T_src_ref[:3, :3].T + T_src_ref[:3, 3]
+        targets = point_gt(moved, inp_src.valid[ia], inp_ref.points[ib], inp_ref.valid[ib],
+                           cfg.pos_radius, cfg.neg_radius)
+        log_p = model.point_matcher.log_transport(out_src.z[ia], inp_src.valid[ia],
+                                                  out_ref.z[ib], inp_ref.valid[ib])
+        l_ot = point_match_loss(log_p, targets)
     total = cfg.w_gnn * l_gnn + cfg.w_contrastive * l_con + cfg.w_ot * l_ot
     return {"total": total, "gnn": l_gnn, "contrastive": l_con, "ot": l_ot}

@@ -104,3 +104,39 @@ def test_default_config_file_parses_and_overrides():
     assert cfg.data.val_room == "scene0005"
     with pytest.raises(ValueError, match="unknown"):
         from_dict(TrainConfig, apply_overrides(data, ["optim.stepz=7"]))
+
+
+def test_walk_pairs_are_growing_maps_of_one_scene_with_their_ground_truth(tmp_path, scans):
+    cfg = from_dict(TrainConfig, {"data": {
+        "scans_dir": str(scans), "scan_prefix": "toy_", "rescan_gt": "", "val_room": "scene0002",
+        "mix": {"walk": 1.0}, "synth_scenes": 0, "cache_dir": str(tmp_path / "cache")}}).data
+    source = PairSource(cfg, "train", 0)
+    assert source.weights == {"walk": 1.0}
+    pair = source.pair(0)
+    assert pair.source == "walk:toy_scene0001_00" and len(pair.gt) >= cfg.walk.min_shared
+    i, j = pair.matches(0.1)[0]
+    src_pts = pair.src.points[i] @ pair.T_src_ref[:3, :3].T + pair.T_src_ref[:3, 3]
+    assert np.median(np.linalg.norm(src_pts[:, None] - pair.ref.points[j][None], axis=-1).min(1)) < 0.15
+    # a pool without walks keeps its cache name whatever the walk settings
+    plain = from_dict(TrainConfig, {"data": {**{"scans_dir": str(scans), "scan_prefix": "toy_",
+                                                "rescan_gt": "", "val_room": "scene0002"},
+                                             "mix": {"scan": 1.0}, "walk": {"speed": [0.9, 1.0]}}}).data
+    assert PairSource(plain, "train", 0).cache == PairSource(from_dict(TrainConfig, {"data": {
+        "scans_dir": str(scans), "scan_prefix": "toy_", "rescan_gt": "", "val_room": "scene0002",
+        "mix": {"scan": 1.0}}}).data, "train", 0).cache
+
+
+def test_a_pair_without_node_matches_at_the_loss_iou_still_trains(tmp_path, scans):
+    from sgreg_core.net.losses import pair_losses
+
+    from sgreg_core.net.model import SGRegModel
+
+    cfg = _cfg(tmp_path, scans)
+    model = SGRegModel(cfg.model, text_encoder=hashed_text_encoder())
+    pair = PairSource(cfg.data, "train", 0).pair(0)
+    rng = np.random.default_rng(0)
+    losses = pair_losses(model, model.prepare(pair.src, rng=rng), model.prepare(pair.ref, rng=rng),
+                         torch.as_tensor(pair.T_src_ref, dtype=torch.float32),
+                         torch.zeros((0, 2), dtype=torch.int64), cfg.loss)
+    assert all(torch.isfinite(v.detach()) for v in losses.values()) and losses["total"].detach().item() == 0.0
+    losses["total"].backward()
