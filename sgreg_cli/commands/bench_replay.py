@@ -34,8 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML of the nodes (default config/sgreg.yaml)")
     p.add_argument("--seeds", nargs="+", type=int, metavar="N",
-                   help="walk seeds instead of the suite's: new live cases of the same rooms, "
-                   "e.g. to check a change on walks it was not chosen on")
+                   help="walk seeds instead of the suite's: new live cases of the same rooms (the "
+                   "bags the suite takes as they are are left out), e.g. to check a change on "
+                   "walks it was not chosen on")
     p.add_argument("--fresh", action="store_true", help="replay every bag even if a result is cached")
     p.add_argument("--make-only", action="store_true", help="make the bags, replay nothing")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -150,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
     if not jobs:
         print(f"sgreg bench-replay: no bag of {suite.name} matches {args.only}", file=sys.stderr)
         return 2
-    out = Path(args.out or f"results/bench_replay_{suite.name}" + ("_offline" if args.backend == "offline" else ""))
+    seeds = f"_seeds{'-'.join(map(str, args.seeds))}" if args.seeds else ""
+    out = Path(args.out or f"results/bench_replay_{suite.name}{seeds}" + ("_offline" if args.backend == "offline" else ""))
     out.mkdir(parents=True, exist_ok=True)
 
     def log(s: str) -> None:

@@ -25,7 +25,8 @@ Public API:
     BagJob                        one bag of a suite: name, how to make it (or its path), tags
     Suite                         name, jobs, held-out rooms, directories
     load_suite(path, seeds=None) -> Suite    raises SuiteError with a one-line reason; seeds:
-                                  walk seeds instead of the file's (cases nothing was chosen on)
+                                  walk seeds instead of the file's (cases nothing was chosen
+                                  on), without the bags the file takes as they are
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
@@ -99,6 +100,7 @@ class ResultCache:
         return report if isinstance(report, dict) and report.get("cache_key") == key else None
 
     def save(self, name: str, report: dict, key: str) -> None:
+        """Write report (its "cache_key" set here: key, or None when another fleet took part)."""
         report["cache_key"] = None if report.get("foreign") else key
         self.path(name).write_text(json.dumps(report, indent=1, default=float) + "\n")
 
@@ -157,7 +159,8 @@ def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
                 name = f"{stem}_{walk}_s{seed}"
                 spec = {**defaults, **walk_settings, **extra, "scan": scan, "seed": int(seed)}
                 jobs.append(BagJob(name, bag_dir / name, spec, synth, room, capture, walk, int(seed)))
-    for entry in doc.get("bags") or []:
+    # bags taken as they are have no walk to seed: other seeds leave them out
+    for entry in (doc.get("bags") or []) if seeds is None else []:
         bag = (base / entry).resolve()
         jobs.append(BagJob(bag.name, bag, room=bag.name, capture="synthetic", walk="shipped"))
     names = [j.name for j in jobs]

@@ -6,10 +6,7 @@ epoch, run or resume reads it back in milliseconds:
   * "rescan": a view of one capture of a room against a view of another capture of the same
               room, with the pseudo ground truth of rescan_gt.json (furniture moved, other
               coverage: the most realistic pairs we have);
-  * "synth":  two views of a synthetic apartment or office (sgreg_core.simulation.synth);
-  * "walk":   two agents' maps at random moments of their walks through a training scan or a
-              synthetic scene (simulation.walks.walk_pair): growing, partial maps as in live
-              registration.
+  * "synth":  two views of a synthetic apartment or office (sgreg_core.simulation.synth).
 Real scans of the validation room never enter training. Ground-truth node pairs come from the
 voxel-occupancy IoU of the node clouds in the common frame (pairs.node_iou).
 
@@ -36,11 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import invert_transform, transform_points, yaw_transform
-from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map
+from ..maps.instance_map import labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
-from ..simulation.walks import WalkPairConfig, walk_pair
 from ..maps.level import LevelConfig, level_map
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
@@ -54,8 +50,7 @@ class DataConfig:
     rescan_gt:        pseudo ground truth between captures of one room ("" to skip rescans).
     val_room:         scene id kept out of training (all its captures) for validation.
     train_pairs / val_pairs: pool sizes; a training run cycles through its pool.
-    mix:              relative weight of the sources scan / rescan / synth / walk in training.
-    walk:             how the walks of the "walk" source go (WalkPairConfig).
+    mix:              relative weight of the sources scan / rescan / synth in training.
     synth_scenes:     distinct synthetic scenes (seeds 0..n-1), 1-2 rooms each.
     overlap:          overlap of two views, uniform in this range.
     halves_prob:      probability that views split every point (half density) rather than the band.
@@ -82,7 +77,6 @@ class DataConfig:
     min_matches: int = 3
     iou_store: float = 0.1
     cache_dir: str = "runs/cache/pairs"
-    walk: WalkPairConfig = field(default_factory=WalkPairConfig)
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
 
@@ -170,9 +164,8 @@ class PairSource:
         in_val = [cfg.val_room in name for name in scans]
         self.scans = [s for s, v in zip(scans, in_val) if v == (split == "val")]
         self.rescans = self._rescan_list(set(self.scans))
-        synth = split == "train" and cfg.synth_scenes > 0
-        sources = {"scan": bool(self.scans), "rescan": bool(self.rescans), "synth": synth,
-                   "walk": split == "train" and (bool(self.scans) or synth)}
+        sources = {"scan": bool(self.scans), "rescan": bool(self.rescans),
+                   "synth": split == "train" and cfg.synth_scenes > 0}
         if split == "val":  # validation: real pairs of the held-out room only
             weights = {"scan": 0.7, "rescan": 0.3}
         else:
@@ -204,8 +197,6 @@ class PairSource:
         cfg = dataclasses.asdict(self.cfg)
         for k in ("train_pairs", "val_pairs", "cache_dir"):
             cfg.pop(k)
-        if "walk" not in self.weights:      # pools without walks keep the names they had
-            cfg.pop("walk")
         blob = json.dumps([cfg, self.seed, self.scans, self.weights], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:10]
 
@@ -236,28 +227,13 @@ class PairSource:
             elif kind == "scan":
                 scan = self.scans[int(rng.integers(len(self.scans)))]
                 reg, name = make_pair(self._scan(scan), pair_cfg, rng), f"scan:{scan}"
-            elif kind == "synth":
+            else:
                 seed = int(rng.integers(cfg.synth_scenes))
                 reg, name = make_pair(_synth_scene(seed), pair_cfg, rng), f"synth:{seed}"
-            else:
-                scene, name = self._walk_scene(rng)
-                try:
-                    reg = walk_pair(scene, pair_cfg, rng, cfg.walk)
-                except InstanceMapError:    # walks that never share enough objects: draw again
-                    continue
-                name = f"walk:{name}"
             pair = graph_pair_from_registration(reg, cfg.graph, name, cfg.level)
             if len(pair.gt) >= cfg.min_matches and min(pair.src.num_nodes, pair.ref.num_nodes) >= 3:
                 return pair
         raise RuntimeError(f"could not cut a {self.split} pair {index} with {cfg.min_matches} matches")
-
-    def _walk_scene(self, rng: np.random.Generator) -> tuple[InstanceMap, str]:
-        """A training scan or a synthetic scene, alike often (either when only one is there)."""
-        if self.scans and (self.cfg.synth_scenes <= 0 or rng.random() < 0.5):
-            scan = self.scans[int(rng.integers(len(self.scans)))]
-            return self._scan(scan), scan
-        seed = int(rng.integers(self.cfg.synth_scenes))
-        return _synth_scene(seed), f"synth:{seed}"
 
     def _scan(self, name: str) -> InstanceMap:
         return _read_scan(str(resolve(self.cfg.scans_dir) / name))

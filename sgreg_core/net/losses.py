@@ -104,7 +104,7 @@ def pair_losses(model: SGRegModel, inp_src: GraphInput, inp_ref: GraphInput,
     l_gnn = node_match_loss(log_dual_softmax(out_src.descriptor, out_ref.descriptor), gt)
     l_con = shape_contrastive_loss(out_src.shape, out_ref.shape, gt, cfg.temperature)
 
-    if gt.shape[0] == 0:     # no matched node pair to match points in (small, partial views)
+    if gt.shape[0] == 0:     # no node pair at the loss's IoU to match points in: the pair adds nothing
         l_ot = (out_src.z.sum() + out_ref.z.sum()) * 0.0
     else:
         ia, ib = gt[:, 0], gt[:, 1]

@@ -258,7 +258,7 @@ def _hypotheses(s, r, w, b, cfg: PoseConfig, gcfg: GncConfig, result: PoseResult
     the compatibility pyramid (each re-fitted on everything it calls an inlier), kept in
     result.hypotheses; known: those of an earlier pass, taken instead. Then cfg.pair_hypotheses
     of the poses two correspondences fix, after GNC's."""
-    if known is None:
+    if not known:
         known = _fitted_hypotheses(s, r, w, b, cfg, gcfg, result, clock)
     result.hypotheses = list(known)
     if not known or not cfg.pair_hypotheses:
@@ -368,7 +368,8 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     groups:       optional (N,) int, the object (node match) of each correspondence: the
                   verdict counts distinct inlier objects; default each its own.
     hypotheses:   PoseResult.hypotheses of an earlier pass over the same correspondences (e.g.
-                  one with more pair poses): GNC and the clique pyramid are not run again.
+                  one with more pair poses): GNC and the clique pyramid are not run again (so
+                  used_pyramid and clique_sizes stay unset); empty or None: fitted here.
     """
     clock = _Clock()
     src, ref = as_points(src_pts), as_points(ref_pts)

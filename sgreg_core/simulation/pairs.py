@@ -8,8 +8,6 @@ Public API:
                                 "src_tilt" / "ref_tilt" applied to each view in the common
                                 frame); .matches(min_iou=0.3) -> the pairs at/above min_iou
     make_pair(imap, cfg, rng) -> RegistrationPair
-    pair_from_views(view_a, view_b, cfg, rng, meta=None) -> RegistrationPair
-        two views of one scene, in its frame, made into a pair as make_pair makes its cut views
     node_iou(src_points, src_inst, ref_points, ref_inst, voxel) -> (pairs (m, 2), iou (m,))
         IoU of voxel occupancy of every overlapping (src instance, ref instance), common frame
     point_correspondences(src_points, ref_points, T_src_ref, radius=0.05) -> (k, 2) int64
@@ -144,18 +142,10 @@ def make_pair(imap: InstanceMap, cfg: PairConfig | None = None, rng: np.random.G
     cfg = cfg or PairConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
     in_a, in_b = _cut_views(imap, cfg, rng)
-    return pair_from_views(select_points(imap, in_a), select_points(imap, in_b), cfg, rng)
-
-
-def pair_from_views(view_a: InstanceMap, view_b: InstanceMap, cfg: PairConfig,
-                    rng: np.random.Generator, meta: dict | None = None) -> RegistrationPair:
-    """The registration pair of two views of one scene given in the scene frame, sharing
-    instance ids where they see the same object: noise on each, ids renumbered, ground-truth
-    node pairs, then each view tilted and the source moved (the module docstring)."""
     tilt_rng = np.random.default_rng(rng.integers(2**63))  # its own stream, drawn with or without tilt
     views = []
-    for v, name in ((view_a, "source"), (view_b, "reference")):
-        view = apply_noise(v, cfg.noise, rng)
+    for m, name in ((in_a, "source"), (in_b, "reference")):
+        view = apply_noise(select_points(imap, m), cfg.noise, rng)
         if not labelled_mask(view).any():
             raise InstanceMapError(f"{name} view has no labelled point (overlap {cfg.overlap})")
         views.append(view)
@@ -178,7 +168,7 @@ def pair_from_views(view_a: InstanceMap, view_b: InstanceMap, cfg: PairConfig,
     meta = {"overlap": cfg.overlap, "disjoint": cfg.disjoint, "noise": asdict(cfg.noise),
             "src_points": int(len(src.points)), "ref_points": int(len(ref.points)),
             "src_tilt_deg": _tilt_deg(S), "ref_tilt_deg": _tilt_deg(R),
-            "src_tilt": S.tolist(), "ref_tilt": R.tolist(), **(meta or {})}
+            "src_tilt": S.tolist(), "ref_tilt": R.tolist()}
     return RegistrationPair(src=src, ref=ref, T_src_ref=T_src_ref, gt_node_pairs=pairs[keep],
                             gt_iou=iou[keep], meta=meta)
 

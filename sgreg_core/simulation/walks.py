@@ -20,10 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import invert_transform, pack_keys, transform_points, voxel_coords, yaw_transform
-from ..maps.instance_map import InstanceMapError, labelled_mask, select_points
-from .observe import (SensorConfig, TrajectoryConfig, first_seen, make_trajectory, observe_sequence,
-                      reverse_trajectory)
-from .pairs import PairConfig, RegistrationPair, node_iou, pair_from_views
+from ..maps.instance_map import labelled_mask, select_points
+from .observe import SensorConfig, TrajectoryConfig, make_trajectory, observe_sequence, reverse_trajectory
+from .pairs import node_iou
 from ..maps.scene_graph import is_structural
 from ..types import InstanceMap
 
@@ -222,53 +221,3 @@ def overlapping_views(names: list[str], seed: int = 0, rooms: int = 1) -> tuple[
         maps[name] = InstanceMap(points=transform_points(np.linalg.inv(T), part.points).astype(np.float32),
                                  instance=part.instance, labels=part.labels, scores=part.scores)
     return maps, frames
-
-
-@dataclass
-class WalkPairConfig:
-    """Training pairs from walks (net/dataset.py source "walk"): two agents walk a scene, each
-    scene point sampled by one of them only, and each map is taken at a random moment while it
-    grows, early moments more often: the small, partial maps of live registration. Each range is
-    drawn uniformly.
-    speed: m/s; max_range / hfov_deg: the sensor; b walks a's path backwards with probability
-    opposite_prob, else a path of its own; min_shared: objects both maps hold (held_objects),
-    else other moments are drawn (draws of them at most)."""
-
-    speed: tuple[float, float] = (0.2, 0.5)
-    max_range: tuple[float, float] = (3.0, 5.0)
-    hfov_deg: tuple[float, float] = (60.0, 120.0)
-    opposite_prob: float = 0.5
-    clearance: float = 0.15
-    waypoints: int = 3
-    voxel: float = 0.05
-    min_shared: int = 3
-    object_min_points: int = 30
-    draws: int = 20
-
-
-def walk_pair(scene: InstanceMap, cfg: PairConfig, rng: np.random.Generator,
-              walk: WalkPairConfig | None = None) -> RegistrationPair:
-    """A registration pair of two agents' maps at random moments of their walks through `scene`
-    (WalkPairConfig), made a pair as cut views are (pairs.pair_from_views: noise, ids, tilt,
-    transform); raises InstanceMapError when no drawn moments share min_shared objects."""
-    walk = walk or WalkPairConfig()
-    scene = downsample_per_instance(scene.transformed(level_transform(scene)), walk.voxel)
-    own = rng.random(len(scene.points)) < 0.5
-    halves = select_points(scene, own), select_points(scene, ~own)
-    traj = TrajectoryConfig(clearance=walk.clearance, waypoints=walk.waypoints, random_start=True,
-                            speed=float(rng.uniform(*walk.speed)))
-    times_a, poses_a = make_trajectory(scene, rng, traj)
-    times_b, poses_b = (reverse_trajectory(times_a, poses_a) if rng.random() < walk.opposite_prob
-                        else make_trajectory(scene, rng, traj))
-    seen = [first_seen(half, times, poses, SensorConfig(max_range=float(rng.uniform(*walk.max_range)),
-                                                        hfov_deg=float(rng.uniform(*walk.hfov_deg))))
-            for half, times, poses in ((halves[0], times_a, poses_a), (halves[1], times_b, poses_b))]
-    for _ in range(walk.draws):
-        # moments drawn towards the start (u^2): early, small maps are where live registration fails
-        views = [select_points(half, s <= times[0] + (times[-1] - times[0]) * rng.random() ** 2)
-                 for half, s, times in ((halves[0], seen[0], times_a), (halves[1], seen[1], times_b))]
-        held = [set(held_objects(v, walk.object_min_points)) for v in views]
-        if len(held[0] & held[1]) >= walk.min_shared:
-            return pair_from_views(*views, cfg, rng, meta={"walk": True})
-    raise InstanceMapError(f"no moments of the walks share {walk.min_shared} objects")
-
