@@ -132,7 +132,7 @@ def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
     base = path.parent
     data = (base / doc.get("data", ".")).resolve()
     bag_dir = (base / doc.get("bag_dir", f"generated/{path.stem}")).resolve()
-    seeds = list(seeds or doc.get("seeds") or [0])
+    walk_seeds = list(seeds or doc.get("seeds") or [0])
     walks = doc.get("walks") or {"default": {}}
     defaults = dict(doc.get("defaults") or {})
     jobs: list[BagJob] = []
@@ -155,7 +155,7 @@ def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
             if key in extra:
                 extra[key] = str(data / extra[key])
         for walk, walk_settings in walks.items():
-            for seed in seeds:
+            for seed in walk_seeds:
                 name = f"{stem}_{walk}_s{seed}"
                 spec = {**defaults, **walk_settings, **extra, "scan": scan, "seed": int(seed)}
                 jobs.append(BagJob(name, bag_dir / name, spec, synth, room, capture, walk, int(seed)))

@@ -124,6 +124,8 @@ def test_results_are_reused_only_under_their_key_and_never_with_another_fleet(tm
 
 
 def test_other_walk_seeds_make_other_bags_of_the_same_scans(tmp_path):
-    suite = load_suite(write(tmp_path, SUITE + "bags:\n  - shipped_bag\n"), seeds=[7])
+    path = write(tmp_path, SUITE + "bags:\n  - shipped_bag\n")
+    assert [j.name for j in load_suite(path).jobs].count("shipped_bag") == 1
+    suite = load_suite(path, seeds=[7])
     assert len(suite.jobs) == 3 * 2 and {j.seed for j in suite.jobs} == {7}    # no shipped bag
     assert all(j.name.endswith("_s7") and j.spec["seed"] == 7 for j in suite.jobs)
