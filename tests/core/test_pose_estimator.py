@@ -407,3 +407,20 @@ def test_the_clique_pyramid_sees_the_most_confident_correspondences_only():
     from sgreg_core.pose.estimator import _clique_pyramid
     level = _clique_pyramid(src, ref, np.full(6000, 0.1), w, (0.2,), PoseConfig(max_clique_correspondences=1000))[0]
     assert level.indices.size >= 100 and set(level.indices) <= set(np.argsort(-w)[:1000])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_second_pass_on_the_first_pass_hypotheses_matches_a_pass_from_scratch(seed):
+    """The coarse retry adds pair poses to the first pass's GNC and clique poses instead of
+    fitting those again: the same candidates in the same order, so the same estimate."""
+    rng = np.random.default_rng(seed)
+    src, ref, _ = correspondences(rng, 60, 0.8, random_room_pose(rng))   # the pyramid runs
+    first = estimate_pose(src, ref, cfg=PoseConfig())
+    assert first.used_pyramid and len(first.hypotheses) >= 2
+    with_pairs = PoseConfig(pair_hypotheses=8)
+    fresh = estimate_pose(src, ref, cfg=with_pairs)
+    again = estimate_pose(src, ref, cfg=with_pairs, hypotheses=first.hypotheses)
+    assert again.candidates == fresh.candidates > len(first.hypotheses)
+    assert again.reason == fresh.reason and again.inliers == fresh.inliers
+    assert np.array_equal(again.T, fresh.T) and again.confidence == fresh.confidence
+    assert not again.used_pyramid and np.array_equal(again.hypotheses, first.hypotheses)
