@@ -196,6 +196,9 @@ class RegistrationNode(SgregNode):
         result = self._decode(convert.result_from_msg, raw, RegistrationResult, "registration", peer)
         if result is None:
             return
+        self.guarded(f"registration result of {result.agent}", lambda: self._take_result(result))
+
+    def _take_result(self, result) -> None:
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness

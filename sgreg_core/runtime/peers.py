@@ -97,7 +97,10 @@ class PeersConfig:
     sequence_window: a sequence is taken when it lies 1..window past the last one. Anything
         else (a jump, a step back) is held and taken only when the next message continues it,
         a step back then being a restart of the peer (its map frame is new): a single forged
-        or replayed number can neither lock a peer out nor force a restart.
+        or replayed number can neither lock a peer out nor force a restart. A peer numbers its
+        dense answers to every requester (at most AgentConfig.dense_answers_per_s, 100 at
+        most), and only those to this agent arrive here: for them the window grows by itself
+        for every second since the last one (a quiet link in a busy fleet is not locked out).
     max_peers / peer_timeout_s: at most this many peers are kept; a peer silent for
         peer_timeout_s is forgotten (expire()).
     max_nodes / max_points: bigger messages are refused (oversized).
@@ -262,13 +265,14 @@ class _PendingRequest:
 @dataclass
 class Kept:
     """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
-    had in each map then and the own map's levelling then, to notice when either map moves
+    had in each map then and both maps' levelling then, to notice when either map moves
     under them."""
 
     corr: Correspondences
     peer_nodes: dict[int, np.ndarray]
     own_nodes: dict[int, np.ndarray]
     own_level: np.ndarray = field(default_factory=lambda: np.eye(3))
+    peer_level: np.ndarray = field(default_factory=lambda: np.eye(3))
 
 
 def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
@@ -323,6 +327,7 @@ class PeerLink:
     gave_up: bool = False        # its last request went unanswered after every retry
     prompt: bool = False         # a coarse estimate waits for the peer's points (prompt_request)
     last_seq: dict = field(default_factory=dict)   # stream -> last sequence seen
+    last_seq_at: dict = field(default_factory=dict)   # stream -> when it was taken
     candidate: Hypothesis | None = None
     candidate_at: float = -np.inf   # when the candidate was first estimated
     confirmed: Hypothesis | None = None
@@ -402,6 +407,8 @@ class Peers:
             held.clear()
         elif link_state != "confirmed" or reason == "disputed_by_cycles":
             held.pop("confirmed", None)
+        if peer in self._witnesses and not held:
+            del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
         if not passed:
             return
@@ -506,6 +513,11 @@ class Peers:
         t0 = time.perf_counter()
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud, link.prompt = msg, msg.points, False
+        if link.kept is not None and not _levelled_alike(link.kept.peer_level, msg.level):
+            # the peer levelled its map anew: the kept pairs are in its frame of then (whether
+            # or not this answer's estimate replaces them)
+            link.kept = None
+            self._count("kept_dropped")
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
         beside = self._coarse_beside(link, msg, timings, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
@@ -598,7 +610,10 @@ class Peers:
                 return None
             link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
         last = link.last_seq.get(stream)
-        if last is not None and not 0 < msg.sequence - last <= self.cfg.sequence_window:
+        window = self.cfg.sequence_window
+        if stream == "dense" and last is not None:
+            window *= max(1.0, now - link.last_seq_at[stream])
+        if last is not None and not 0 < msg.sequence - last <= window:
             held = link.held.get(stream)
             if held is None or msg.sequence != held + 1:    # held until the next message continues it
                 link.held[stream] = msg.sequence
@@ -618,7 +633,7 @@ class Peers:
             # lost on the way (a full queue, the network); dense answers also go to others
             self.counters["missed_messages"] += msg.sequence - last - 1
         link.held.pop(stream, None)
-        link.last_seq[stream] = msg.sequence
+        link.last_seq[stream], link.last_seq_at[stream] = msg.sequence, now
         link.heard_at = now
         return link
 
@@ -632,8 +647,10 @@ class Peers:
         if n > self.cfg.max_nodes or (msg.points is not None and msg.points.shape[0] > self.cfg.max_points):
             return "oversized_message", f"{n} nodes / points over max_nodes={self.cfg.max_nodes}, max_points={self.cfg.max_points}"
         desc, centers = msg.nodes.descriptor, msg.nodes.centers
+        if desc.ndim != 2:
+            return "bad_feature_size", f"features {desc.shape}, expected ({n}, dim)"
         dim = self.agent.features.descriptor.shape[1] if self.agent.ready else desc.shape[1]
-        if desc.ndim != 2 or desc.shape != (n, dim) or centers.shape != (n, 3):
+        if desc.shape != (n, dim) or centers.shape != (n, 3):
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
         if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
             return "bad_nodes", "extents do not match the nodes, or a node id repeats"
@@ -714,9 +731,9 @@ class Peers:
         self._count(f"estimates_{reg.mode}")
         peer_msg = dense if dense is not None else link.coarse
         T = self._own_to_peer(reg, peer_msg)
-        if self._vouched(link.peer_id, reg, T, now):
+        vouched = self._vouched(link.peer_id, reg, T, now)
+        if vouched:
             reg.success, reg.reason = True, "ok"
-            self._count("vouched_by_peer")
         if reg.mode == "coarse" and reg.node_matches < self.cfg.min_coarse_matches:
             reason = "too_few_matches"
         elif reg.success and link.dense_cloud is None:
@@ -726,11 +743,17 @@ class Peers:
             if dense is not None and reg.success and self.cfg.keep_correspondences:
                 corr, own = reg.inlier_corr(), self.agent.features
                 kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
-                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R)
+                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R,
+                            np.asarray(dense.level))
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,
                              kept)
-            reason = self._link_rules(link, reg, hyp, now, beside)
+            reason = self._link_rules(link, reg, hyp, now, beside, vouched)
+        if vouched:
+            if reason == "ok":
+                self._count("vouched_by_peer")
+            elif reason == "low_confidence":
+                reg.success, reg.reason = False, reason
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
@@ -763,10 +786,15 @@ class Peers:
         return rte(a, b) < self.cfg.agree_m and rre(a, b) < self.cfg.agree_deg
 
     def _link_rules(self, link: PeerLink, reg: Registration, hyp: Hypothesis, now: float,
-                    beside: Hypothesis | None = None) -> str:
+                    beside: Hypothesis | None = None, vouched: bool = False) -> str:
         """"ok" when the estimate may be published as verified, else why not; updates the link.
         beside: an unpublished estimate of the same query that passed the verdict
-        (coarse_with_dense), one more estimate that may confirm hyp; it changes nothing else."""
+        (coarse_with_dense), one more estimate that may confirm hyp; it changes nothing else.
+        vouched: hyp fell short only of the verdict's confidence and the peer's confirmed link
+        agrees with it (_vouched): it is taken where that link confirms it, and is otherwise
+        what the verdict said, "low_confidence": no candidate, no second estimate, and no
+        passing dense estimate for the peer to take as its own witness (the peer's link would
+        vouch for itself)."""
         merged = reg.mode == "merged"
         if not reg.success:
             if reg.reason == "ambiguous":
@@ -798,6 +826,11 @@ class Peers:
             return "contradicted"
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
+        if vouched:
+            if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
+                self._confirm(link, hyp, "confirmed_by_peer")
+                return "ok"
+            return "low_confidence"
         cand = link.candidate
         if cand is None or not self._agree(hyp.T, cand.T):
             link.candidate, link.candidate_at = hyp, now

@@ -173,8 +173,9 @@ def resting_on(reg, objects):
     that is set (None: their own count)."""
     rules = reg._link_rules
 
-    def few(link, r, hyp, now, beside=None):
-        return rules(link, r, hyp if objects[0] is None else replace(hyp, objects=objects[0]), now, beside)
+    def few(link, r, hyp, now, beside=None, vouched=False):
+        return rules(link, r, hyp if objects[0] is None else replace(hyp, objects=objects[0]), now,
+                     beside, vouched)
     reg._link_rules = few
 
 
@@ -327,6 +328,12 @@ def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(mo
         assert est.reason == "low_confidence" and reg.counters["vouched_by_peer"] == 0, (verified, mode)
     reg, est = first_dense(replace(cfg, vouched_min_confidence=1.0), T_ba)
     assert est.reason == "low_confidence"
+    # vouched for but not confirmed by b's link (too few objects for a first link): what the
+    # verdict said, so that b does not take its own link's echo as a passing dense estimate,
+    # and no candidate for a later estimate to be confirmed by
+    reg, est = first_dense(replace(cfg, first_link_min_objects=1000), T_ba)
+    assert est.reason == "low_confidence" and not est.verified and not est.registration.success
+    assert reg.links["b"].candidate is None and reg.counters["vouched_by_peer"] == 0
 
 
 def test_after_a_tie_only_the_peers_word_confirms_for_a_while(model, graphs):
@@ -567,6 +574,17 @@ def test_one_forged_sequence_neither_locks_out_nor_restarts(model, graphs):
     assert est is not None and reg.links["b"] is link
 
 
+def test_a_quiet_link_takes_the_dense_answers_of_a_peer_busy_with_others(model, graphs):
+    """b numbers its answers to every requester: after ten minutes in which b answered others
+    1500 times, its next answer to a is taken; a number that far ahead a second later is not."""
+    a, b, reg, _ = make_agents(model, graphs)
+    assert reg._accept(b.dense_message(1, None, "a", 1), "dense", 0.0) is not None
+    assert reg._accept(b.dense_message(1501, None, "a", 1), "dense", 600.0) is not None
+    assert reg._accept(b.dense_message(1501 + 2000, None, "a", 1), "dense", 601.0) is None
+    assert reg.counters["sequence_jump"] == 1
+    assert reg._accept(b.dense_message(1502, None, "a", 1), "dense", 602.0) is not None
+
+
 def test_dense_graphs_only_in_reply_and_peers_bounded(model, graphs):
     a, b, reg, _ = make_agents(model, graphs, PeersConfig(max_peers=1, peer_timeout_s=10.0))
     assert reg.on_dense(b.dense_message(1, None, "a", 99), now=0.0) is None       # nobody asked
@@ -652,6 +670,28 @@ def test_no_estimate_before_own_map(model, graphs):
     reg = Peers(PeersConfig(), a, model, log=lambda s: None)
     assert reg.on_coarse(b.coarse_message(1), now=0.0) == (None, None)
     assert reg.counters["own_map_not_ready"] == 1
+
+
+def test_a_malformed_graph_before_the_own_map_is_refused_not_raised(model, graphs):
+    _, b, _, _ = make_agents(model, graphs)
+    reg = Peers(PeersConfig(), AgentCore(AgentConfig(name="a"), model), model, log=lambda s: None)
+    msg = b.coarse_message(1)
+    msg.nodes = replace(msg.nodes, descriptor=msg.nodes.descriptor[:, 0])
+    assert reg.on_coarse(msg, now=0.0) == (None, None)
+    assert reg.counters["bad_feature_size"] == 1
+
+
+def test_witnesses_taken_back_leave_the_bound_on_peers_working(model, graphs):
+    """b takes back what it said (its link contradicted): with max_peers 1, c's verified
+    result then takes b's place instead of failing on b's emptied record."""
+    from sgreg_core.geometry import invert_transform
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(max_peers=1))
+    T_ba = invert_transform(T_GT)
+    reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
+    reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "none", now=1.0)
+    reg.on_peer_result("c", T_ba, True, "merged", "ok", "confirmed", now=2.0)
+    assert reg._witness_agrees("c", T_GT, 2.5, ("confirmed",))
+    assert not reg._witness_agrees("b", T_GT, 2.5, ("confirmed", "dense"))
 
 
 def test_own_messages_are_ignored(model, graphs):
@@ -814,6 +854,22 @@ def test_kept_correspondences_go_when_the_peer_levels_its_map_anew(model, graphs
     reg.on_coarse(msg, now=2.0)
     assert reg.links["b"].kept is None and reg.counters["kept_dropped"] == 1
     assert any("levelled anew" in line for line in logs)
+
+
+def test_kept_correspondences_go_when_a_dense_answer_comes_at_a_new_levelling(model, graphs):
+    """The answer replaces the peer's points; the kept pairs of the old levelling go with them
+    even when the answer's own estimate is refused (the next coarse graph, at the new
+    levelling like the answer, would not notice)."""
+    from scipy.spatial.transform import Rotation
+
+    a, b, reg, _ = confirmed_link(model, graphs)
+    link = reg.links["b"]
+    assert link.kept is not None
+    dense = b.dense_message(2, None, "a", link.asked[-1])
+    dense.level = Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix()
+    reg.on_dense(dense, now=2.0)
+    assert reg.counters["kept_dropped"] == 1
+    assert link.kept is None or np.allclose(link.kept.peer_level, dense.level)
 
 
 def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, graphs):
