@@ -12,8 +12,9 @@ from pathlib import Path
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 from sgreg_ros import qos
@@ -37,10 +38,36 @@ def qos_for(topic: str) -> QoSProfile:
     """The QoS sgreg's own nodes use on a topic of that name (see qos.py)."""
     for suffix, profile in (("/sgreg/coarse", qos.COARSE), ("/sgreg/dense", qos.DENSE),
                             ("/sgreg/dense_request", qos.DENSE_REQUEST),
-                            ("/mapping/instances", qos.INSTANCES)):
+                            ("/mapping/instances", qos.INSTANCES), ("/tf_static", qos.TF_STATIC)):
         if topic.endswith(suffix):
             return profile
     return qos.RESULTS
+
+
+def offered_qos(profile: QoSProfile) -> Qos:
+    """A publisher's QoS as rosbag2 metadata (offered_qos_profiles), from which the real `ros2 bag
+    play` publishes: a transient-local subscriber (sgreg/coarse, /tf_static) matches only a
+    transient-local publisher. Deadline, lifespan and lease left at rosbag2's 0 (the default)."""
+    zero = QosTime(sec=0, nsec=0)
+    return Qos(history=QosHistory.KEEP_LAST, depth=int(profile.depth),
+               reliability=(QosReliability.BEST_EFFORT if profile.reliability == ReliabilityPolicy.BEST_EFFORT
+                            else QosReliability.RELIABLE),
+               durability=(QosDurability.TRANSIENT_LOCAL if profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                           else QosDurability.VOLATILE),
+               deadline=zero, lifespan=zero, liveliness=QosLiveliness.AUTOMATIC,
+               liveliness_lease_duration=zero, avoid_ros_namespace_conventions=False)
+
+
+def adapted_qos(topic: str, offered: list[QoSProfile]) -> QoSProfile:
+    """A recorder's subscription that matches every publisher on the topic, as `ros2 bag record`
+    adapts: reliable only when all of them are, transient local only when all of them are
+    (with sgreg's depth for its own topics)."""
+    depth = qos_for(topic).depth
+    reliable = all(p.reliability != ReliabilityPolicy.BEST_EFFORT for p in offered)
+    transient = bool(offered) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
+    return QoSProfile(depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
 
 
 def open_bag(path: str | Path) -> Reader:
@@ -99,7 +126,7 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
         clock.sleep_until(time.monotonic() + delay)
         t0_bag, t0_wall = None, time.monotonic()
         for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
-            if should_stop():
+            if should_stop() or not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
                 break
             if t0_bag is None:
                 t0_bag = t_ns
@@ -116,7 +143,7 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
             report.published += 1
             report.per_topic[conn.topic] = report.per_topic.get(conn.topic, 0) + 1
         # a reliable message still in flight dies with the process: wait for the readers' acks
-        for pub in pubs.values():
+        for pub in pubs.values() if rclpy.ok() else ():
             pub.wait_for_all_acked(Duration(seconds=flush_timeout))
     finally:
         reader.close()
@@ -140,7 +167,7 @@ class _BagClock:
         self.wall0, self.bag0 = wall0, bag0_ns
 
     def sleep_until(self, wall: float) -> None:
-        while True:
+        while rclpy.ok():
             now = time.monotonic()
             if self.pub is not None:
                 t = self.bag0 + (0 if self.wall0 is None else int((now - self.wall0) * self.rate * 1e9))
@@ -166,15 +193,23 @@ class BagRecorder:
         self.counts: dict[str, int] = {}
 
     def add_topic(self, topic: str, msgtype: str) -> None:
-        """msgtype as 'pkg/msg/Name'."""
+        """msgtype as 'pkg/msg/Name'. The subscription adapts to the topic's publishers (a
+        best-effort one would send a reliable subscriber nothing), and their QoS goes into the
+        bag for `ros2 bag play`."""
         if topic in self.connections:
             return
         cls = message_class(msgtype)
-        conn = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        offered = [i.qos_profile for i in self.node.get_publishers_info_by_topic(topic)]
+        try:
+            conn = self.writer.add_connection(topic, msgtype, typestore=self.store,
+                                              offered_qos_profiles=[offered_qos(p) for p in offered]
+                                              or [offered_qos(qos_for(topic))])
+        except Exception as exc:  # rosbags: a type its typestore lacks, among others
+            raise BagError(f"cannot record {msgtype}: {exc}") from None
         self.connections[topic] = conn
         self.counts[topic] = 0
         self.node.create_subscription(cls, topic, lambda raw, c=conn, t=topic: self._write(c, t, raw),
-                                      qos_for(topic), raw=True)
+                                      adapted_qos(topic, offered), raw=True)
 
     def _write(self, conn, topic: str, raw: bytes) -> None:
         self.writer.write(conn, self.node.get_clock().now().nanoseconds, raw)

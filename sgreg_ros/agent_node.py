@@ -55,7 +55,7 @@ class AgentNode(SgregNode):
                                      qos.INSTANCES, raw=True)
             self.create_subscription(DenseRequest, self.topic("sgreg/dense_request"), self.on_request,
                                      qos.DENSE_REQUEST, raw=True)
-            self.coarse_timer = self.create_timer(1.0 / p["coarse_rate_hz"], self.publish_coarse)
+            self.coarse_timer = self.create_timer(1.0 / p["coarse_rate_hz"], self.on_coarse_timer)
             self.get_logger().info(f"agent '{self.name}' up, weights {self.core.weights_id}")
         self.accept_live_parameters()
 
@@ -66,18 +66,24 @@ class AgentNode(SgregNode):
             return
         if "coarse_rate_hz" in changes:
             self.destroy_timer(self.coarse_timer)
-            self.coarse_timer = self.create_timer(1.0 / changes["coarse_rate_hz"], self.publish_coarse)
+            self.coarse_timer = self.create_timer(1.0 / changes["coarse_rate_hz"], self.on_coarse_timer)
         core = pick(AgentConfig, changes)
         if core:
             self.core.cfg = replace(self.core.cfg, **core)
+
+    def guarded(self, what: str, work) -> None:
+        super().guarded(what, work, self.core.refuse)
 
     def on_instances(self, raw: bytes) -> None:
         self.map_taken(convert.take_instance_map(raw, self.core.take_map, self.core.refuse))
         if self.core.ready and not self.core.counters["coarse_sent"]:
             # the first graph goes out at once, and the timer starts over: the same graph again
             # at the next tick, a fraction of a second later, would be no new evidence to a peer
-            self.publish_coarse()
+            self.on_coarse_timer()
             self.coarse_timer.reset()
+
+    def on_coarse_timer(self) -> None:
+        self.guarded("the coarse graph", self.publish_coarse)
 
     def publish_coarse(self) -> None:
         now = time.monotonic()
@@ -96,6 +102,9 @@ class AgentNode(SgregNode):
         if refused:
             return self.refusal(self.core.refuse(refused, f"dense request {req.sequence} "
                                                  f"from {req.from_agent!r} refused: {refused}"), key=refused)
+        self.guarded(f"dense request {req.sequence} of {req.from_agent!r}", lambda: self._answer(req))
+
+    def _answer(self, req) -> None:
         dense, why = self.core.answer_request(req, time.monotonic())
         if dense is None:
             return self.refusal(why, key=" ".join(why.split()[:2]))

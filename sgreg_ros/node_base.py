@@ -65,6 +65,14 @@ class SgregNode(Node):
     def apply(self, changes: dict) -> None:
         """Apply live parameters (already checked) to the node's core."""
 
+    def guarded(self, what: str, work, refuse) -> None:
+        """work(), and a bug in it costs that one piece of work, not the node: logged and
+        counted as internal_error by refuse(counter, why) -> the line to log."""
+        try:
+            work()
+        except Exception as exc:
+            self.get_logger().error(refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
+
     def map_taken(self, why: str | None) -> None:
         """After the own instance map was offered: log why it was refused, or note its time."""
         if why:

@@ -49,7 +49,7 @@ def pick(cls, values: dict) -> dict:
 
 def check(p: Param, value):
     """`value` if it suits parameter p (type, range, choices); else ParameterError."""
-    if type(value) is not type(p.default) and not (isinstance(p.default, float) and isinstance(value, int)):
+    if type(value) is not type(p.default) and not (isinstance(p.default, float) and type(value) is int):
         raise ParameterError(f"parameter '{p.name}' must be {type(p.default).__name__}, got {value!r}")
     if p.low is not None and not (p.low <= value <= p.high):
         raise ParameterError(f"parameter '{p.name}' = {value} is outside [{p.low}, {p.high}]")
@@ -63,6 +63,10 @@ def declare_and_read(node, table: list[Param]) -> dict:
     values = {}
     for p in table:
         desc = ParameterDescriptor(description=p.description)
+        if isinstance(p.default, float):
+            # "-p view_period_s:=0" or "ros2 param set ... coarse_rate_hz 2" give an integer:
+            # taken (check() makes it a float and checks the range) instead of a type error
+            desc.dynamic_typing = True
         if p.low is not None and isinstance(p.default, float):
             desc.floating_point_range = [FloatingPointRange(from_value=float(p.low), to_value=float(p.high), step=0.0)]
         elif p.low is not None and isinstance(p.default, int) and not isinstance(p.default, bool):

@@ -13,6 +13,7 @@
 - /diagnostics: reliable, depth 10, volatile, like diagnostic_updater's, so that
   rqt_robot_monitor, the diagnostic aggregator and Foxglove all match it.
 - /tf: reliable, depth 100, volatile, as tf2_ros's TransformBroadcaster (RViz, tf2 listeners).
+- /tf_static (bags only): reliable, depth 1, transient local, as tf2_ros's static broadcaster.
 - sgreg/markers, sgreg/merged_cloud: reliable, depth 1, transient local: a viewer that opens
   late gets the last picture at once.
 """
@@ -33,4 +34,5 @@ DENSE = _qos(2)
 RESULTS = _qos(10)
 DIAGNOSTICS = _qos(10)
 TF = _qos(100)
+TF_STATIC = _qos(1, transient=True)
 VIEW = _qos(1, transient=True)

@@ -65,7 +65,8 @@ class RegistrationNodeConfig:
 # sends no coarse graphs
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
                    PoseConfig, MergeConfig, HealthConfig, AuthConfig,
-                   skip=("dense_min_interval_s", "heartbeat_period_s"))
+                   skip=("dense_min_interval_s", "dense_answers_per_s", "heartbeat_period_s",
+                         "quiet_after_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
 
@@ -108,8 +109,8 @@ class RegistrationNode(SgregNode):
             for peer in self.fixed_peers:
                 self.add_peer(peer)
             if not self.fixed_peers:
-                self.discovery_timer = self.create_timer(p["discovery_period_s"], self.discover_peers)
-            self.create_timer(0.2, self.on_tick)
+                self.discovery_timer = self.create_timer(p["discovery_period_s"], self.on_discovery)
+            self.create_timer(0.2, lambda: self.guarded("the request timers", self.on_tick))
             self.create_timer(p["merge_period_s"], self.on_merge)
             self.matches: dict[str, object] = {}     # peer -> inlier node pairs of its last verified estimate
             if p["view_period_s"] > 0:
@@ -127,12 +128,15 @@ class RegistrationNode(SgregNode):
             return
         if "discovery_period_s" in changes and self.discovery_timer is not None:
             self.destroy_timer(self.discovery_timer)
-            self.discovery_timer = self.create_timer(changes["discovery_period_s"], self.discover_peers)
+            self.discovery_timer = self.create_timer(changes["discovery_period_s"], self.on_discovery)
         core = pick(PeersConfig, changes)
         if core:
             self.peers.cfg = replace(self.peers.cfg, **core)
 
     # ---- peers ---------------------------------------------------------------------------
+    def on_discovery(self) -> None:
+        self.guarded("peer discovery", self.discover_peers)
+
     def discover_peers(self) -> None:
         """Listen to every agent whose coarse topic appears: with a keystore only the fleet's
         agents, and never more than max_peers (a flood of fake topics costs nothing)."""
@@ -199,6 +203,13 @@ class RegistrationNode(SgregNode):
         self.guarded(f"registration result of {result.agent}", lambda: self._take_result(result))
 
     def _take_result(self, result) -> None:
+        if result.peer != self.name and result.peer not in self.request_pubs:
+            # a link to an agent this node does not listen to (at most max_peers): results
+            # naming made-up agents would grow the merge without bound
+            self.refusal(self.agent.refuse("result_names_unknown_agent", f"result of {result.agent} "
+                                           f"about '{result.peer}', an agent not listened to: left out"),
+                         key=f"result_names_unknown_agent {result.agent}")
+            return
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
@@ -228,10 +239,7 @@ class RegistrationNode(SgregNode):
             self.drop_peer(peer)
 
     def guarded(self, what: str, work) -> None:
-        try:
-            work()
-        except Exception as exc:  # a bug must cost one estimate, not the node
-            self.get_logger().error(self.agent.refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
+        super().guarded(what, work, self.agent.refuse)
 
     # ---- helpers -------------------------------------------------------------------------
     def _decode(self, fn, raw: bytes, cls, topic: str, peer: str):

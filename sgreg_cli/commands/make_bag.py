@@ -122,6 +122,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     from ..bag_types import typestore
+    from ..bags import offered_qos, qos_for
     from sgreg_ros.convert import instance_map_to_msg, transform_msg
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
@@ -167,9 +168,11 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     # zstd chunks inside the MCAP (rosbag2's "storage" compression): point clouds shrink ~2x
     writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     with writer as w:
-        conns = {name: w.add_connection(f"/{name}/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=store)
+        conns = {name: w.add_connection(f"/{name}/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=store,
+                                        offered_qos_profiles=[offered_qos(qos_for(f"/{name}/mapping/instances"))])
                  for name in seq}
-        gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store)
+        gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store,
+                              offered_qos_profiles=[offered_qos(qos_for(GT_TOPIC))])
         for i, (t, name, imap) in enumerate(events):
             stamp = T_ORIGIN + t
             msg = instance_map_to_msg(imap, name, seq[name], stamp)

@@ -37,6 +37,10 @@ def run(args) -> int:
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
+    except Exception:
+        if rclpy.ok():
+            raise
+        return 0     # SIGTERM shut the context down between a check and a publish
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -28,14 +28,17 @@ def run(args) -> int:
         rclpy.try_shutdown()
         return 2
 
+    refused: set = set()     # said once: discovery runs every half second
+
     def discover():
         for topic, types in node.get_topic_names_and_types():
-            if topic in args.topics and topic not in recorder.connections:
+            if topic in args.topics and topic not in recorder.connections and topic not in refused:
                 try:
                     recorder.add_topic(topic, types[0])
                     print(f"recording {topic} ({types[0]})", flush=True)
                 except BagError as exc:
-                    print(f"sgreg record: {topic}: {exc}", file=sys.stderr)
+                    refused.add(topic)
+                    print(f"sgreg record: {topic} not recorded: {exc}", file=sys.stderr)
 
     node.create_timer(0.5, discover)
     print(f"recorder ready, waiting for {', '.join(args.topics)}", flush=True)

@@ -66,7 +66,11 @@ class Keystore:
         sk = self._sign.get(agent)
         if sk is None:
             raise KeystoreError(f"keystore {self.root} holds no private key of agent '{agent}'")
-        return key_id(bytes(sk.verify_key)), sk
+        kid = key_id(bytes(sk.verify_key))
+        if self.owners.get(kid) != agent:    # every peer would refuse its messages as unknown_key
+            raise KeystoreError(f"keystore {self.root}: private/{agent}.key does not match "
+                                f"public/{agent}.pub")
+        return kid, sk
 
     def check(self, kid: str, claimed_agent: str, payload: bytes, signature: bytes) -> str | None:
         """None when `signature` is kid's over payload and kid belongs to claimed_agent, else the
@@ -97,14 +101,17 @@ def init_keystore(root: str | Path, agents: list[str]) -> list[tuple[str, str]]:
     from nacl.signing import SigningKey
 
     root = Path(root)
+    for agent in agents:     # every name checked before anything is written
+        _check_name(agent)
+        if (root / "private" / f"{agent}.key").exists():
+            raise KeystoreError(f"{root} already holds a key of agent '{agent}'")
+    if len(set(agents)) != len(agents):
+        raise KeystoreError(f"agent names repeat: {agents}")
     (root / "private").mkdir(parents=True, exist_ok=True)
     (root / "public").mkdir(parents=True, exist_ok=True)
     os.chmod(root / "private", 0o700)
     made = []
     for agent in agents:
-        _check_name(agent)
-        if (root / "private" / f"{agent}.key").exists():
-            raise KeystoreError(f"{root} already holds a key of agent '{agent}'")
         sk = SigningKey.generate()
         private = root / "private" / f"{agent}.key"
         private.write_text(bytes(sk).hex() + "\n")

@@ -7,8 +7,8 @@ steps on the same links, so all of them publish the same tree:
 
 1. One measurement per directed link: the latest verified T_a^b of agent a for peer b, taken
    between the two agents' levelled frames (each map levelled on its own floor and walls,
-   maps/level.py; Merger.take converts with the levellings it was given), so that it is a
-   4-DoF transform (yaw and translation). A link whose owner says it is no longer confirmed
+   maps/level.py; Merger.update converts with the latest levellings it was given), so that it
+   is a 4-DoF transform (yaw and translation). A link whose owner says it is no longer confirmed
    (withdrawn, contradicted) is dropped.
 2. Consistency: a measurement's support is the number of short cycles it closes within
    cycle_m / cycle_deg: the same pair measured the other way, and triangles a -> c -> b through
@@ -51,7 +51,7 @@ Public API:
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -347,8 +347,11 @@ class Merger:
 
     set_level(agent, R): the rotation that levels agent's map (from its graph messages; the
     identity until known). take(...): a result T_agent^peer between the maps as published,
-    kept between the levelled frames, T = R_peer T R_agent^T. raw_poses(): the merged poses
-    of the maps as they are, T_merged<-map = T_merged<-levelled R (what /tf carries)."""
+    kept as it is; each merge takes it between the levelled frames, T = R_peer T R_agent^T,
+    with the levellings of that moment, the same ones raw_poses() composes: the merged poses
+    of the maps as they are, T_merged<-map = T_merged<-levelled R (what /tf carries). (Kept
+    levelled with the levellings of when it came, a link would place a map wrong once the
+    peer levelled it anew.)"""
 
     def __init__(self, cfg: MergeConfig, agent: str):
         self.cfg, self.agent = cfg, agent
@@ -366,10 +369,13 @@ class Merger:
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
              link_state: str, confidence: float, stamp: float) -> None:
-        levelled = self._level_T(peer) @ np.asarray(T, np.float64) @ invert_transform(self._level_T(agent))
         # as float32, what the other agents' mergers get over the wire: the same order for all
         confidence = float(np.float32(confidence))
-        self.links.take(agent, peer, levelled, verified, reason, link_state, confidence, stamp)
+        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp)
+
+    def _levelled(self, link: Link) -> Link:
+        """The link between the two agents' levelled frames, with the current levellings."""
+        return replace(link, T=self._level_T(link.dst) @ link.T @ invert_transform(self._level_T(link.src)))
 
     def raw_poses(self) -> dict[str, np.ndarray]:
         return {a: T @ self._level_T(a) for a, T in self.result.poses.items()}
@@ -385,7 +391,7 @@ class Merger:
     def update(self, now: float | None = None) -> list[str]:
         """Merge the current links; returns what changed since the last merge, one line each."""
         old = self.result
-        links = self.links.current(now, self.cfg.max_link_age_s)
+        links = [self._levelled(l) for l in self.links.current(now, self.cfg.max_link_age_s)]
         self.result = merge(links, sorted({a for l in links for a in l.key} | {self.agent}), self.cfg)
         news = []
         for a in sorted(set(self.result.attached) - set(old.attached)):

@@ -493,8 +493,11 @@ class Peers:
     def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
         if msg.agent_id == self.agent.cfg.name:
             return None
-        if msg.requester != self.agent.cfg.name or msg.agent_id not in self.links \
-                or msg.request_sequence not in self.links[msg.agent_id].asked:
+        if msg.requester and msg.requester != self.agent.cfg.name:
+            # the peer's answer to another agent: every agent listening to the peer hears it
+            self._count("dense_for_others")
+            return None
+        if msg.agent_id not in self.links or msg.request_sequence not in self.links[msg.agent_id].asked:
             self.agent.refuse("unrequested_dense", "")
             self._say_once(("unrequested_dense", msg.agent_id), f"dense graph from {msg.agent_id!r} "
                            f"answers no request of ours (requester {msg.requester!r}, request "

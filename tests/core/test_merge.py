@@ -170,6 +170,11 @@ def test_links_between_tilted_maps_are_merged_upright():
     for x, T in m.raw_poses().items():       # T_merged<-map, the merged frame a's levelled frame
         truth = np.linalg.inv(WORLD["a"]) @ raw[x]
         assert np.allclose(T, truth, atol=1e-6), x
+    # b levels its map anew (as upright, turned 30 deg): links taken before stay right
+    m.set_level("b", Rotation.from_euler("z", 30, degrees=True).as_matrix() @ lean["b"])
+    m.update(3.0)
+    for x, T in m.raw_poses().items():
+        assert np.allclose(T, np.linalg.inv(WORLD["a"]) @ raw[x], atol=1e-6), x
 
 
 def test_the_anchor_is_the_largest_group_not_a_lone_low_id():

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.serialization import deserialize_message
-from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest
+from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, RegistrationResult
 
 from sgreg_core.bench.replay_score import ground_truth
 from sgreg_core.geometry import yaw_transform
 from sgreg_core.metrics import two_agent_success
 from sgreg_core.runtime.auth import AuthConfig, init_keystore
-from sgreg_ros import qos
+from sgreg_ros import convert, qos
 from sgreg_ros.signing import MessageAuth
 
 from .harness import FAST, Watcher, agent_maps, alive, processes, verified_pairs_ok
@@ -190,4 +190,29 @@ def test_fake_peers_leave_no_state(fleet):
     assert all(w.node.count_subscribers(f"/fake{k}/sgreg/coarse") == 0 for k in range(50))
     for pub in pubs:
         w.node.destroy_publisher(pub)
+    assert not alive(procs)
+
+
+def test_links_to_made_up_agents_are_left_out_of_the_merge(fleet):
+    """b's key in the wrong hands: signed results that claim verified links to a hundred
+    agents nobody listens to. a leaves each out (counted) instead of growing its merge with
+    them, and still registers b."""
+    w, procs, maps, frames, seen = fleet
+    keys = seen["keys"]
+    as_b = MessageAuth(AuthConfig(keystore=str(keys)), "b", w.node.get_logger())
+    pub = w.publisher(RegistrationResult, "/b/sgreg/registration", qos.RESULTS)
+    before = w.counter("/a/registration", "result_names_unknown_agent")
+    for k in range(100):
+        msg = RegistrationResult(agent_id="b", peer_id=f"ghost{k}", sequence=10_000 + k,
+                                 verified=True, mode="dense", reason="ok", link="confirmed",
+                                 confidence=0.99)
+        msg.header.stamp = convert.sec_to_stamp(w.node.get_clock().now().nanoseconds * 1e-9)
+        msg.transform.transform.rotation.w = 1.0
+        pub.publish(as_b.sign(msg, "/b/sgreg/registration"))
+        w.spin_until(lambda: False, 0.02)
+    assert w.spin_until(lambda: w.counter("/a/registration", "result_names_unknown_agent") > before,
+                        10.0, publish_maps=maps)
+    w.transforms.clear()
+    assert w.spin_until(lambda: verified_pairs_ok(w, frames, [("a", "b")]), 60, publish_maps=maps)
+    nothing_wrong(w, frames)
     assert not alive(procs)

@@ -64,11 +64,32 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
     assert "played 12 messages" in play.stdout
     assert rec.returncode == 0, rec_out
     got = read_bag(out)
+    # the publishers' QoS is in the bag, for `ros2 bag play` (transient local for coarse graphs)
+    from rosbags.interfaces import QosDurability
+    with Reader(out) as r:
+        offered = {c.topic: c.ext.offered_qos_profiles for c in r.connections}
+    assert [q.durability for q in offered["/b/sgreg/coarse"]] == [QosDurability.TRANSIENT_LOCAL]
+    assert [q.durability for q in offered["/a/mapping/instances"]] == [QosDurability.VOLATILE]
     # transient-local coarse may be delivered once more on late discovery; compare content
     for topic, messages in sent.items():
         received = [m for m in got.get(topic, [])]
         assert [m.sequence for m in received][-len(messages):] == [m.sequence for m in messages], topic
         assert all(a == b for a, b in zip(received[-len(messages):], messages)), topic
+
+
+def test_play_ends_cleanly_on_sigterm(tmp_path):
+    import signal
+    import time
+
+    src = tmp_path / "long"
+    write_bag(src, n=300)           # 30 s of messages
+    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)
+    play.send_signal(signal.SIGTERM)
+    out, err = play.communicate(timeout=20)
+    assert play.returncode == 0, err
+    assert "Traceback" not in err, err
 
 
 def test_corrupted_message_is_reported_and_the_rest_plays(tmp_path):

@@ -93,6 +93,8 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     assert len(coarse) >= 3
     [ok] = _set(w, "/a/agent", coarse_rate_hz=0.25)      # the timer itself slows down
     assert ok.successful
+    [ok] = _set(w, "/a/agent", heartbeat_period_s=1)     # an integer for a float is taken
+    assert ok.successful, ok.reason
     w.spin_until(lambda: False, 1.0)
     coarse.clear()
     w.spin_until(lambda: False, 8.0)
@@ -106,6 +108,11 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     assert ok.successful
     [ro] = _set(w, "/a/registration", confirm=False)
     assert not ro.successful
+    [bad] = _set(w, "/a/agent", heartbeat_period_s="often")
+    assert not bad.successful and "heartbeat_period_s" in bad.reason
+    # a parameter of the agent node only: the registration node does not claim to take it
+    [absent] = _set(w, "/a/registration", quiet_after_s=5.0)
+    assert not absent.successful
     assert not alive(procs)
 
 
