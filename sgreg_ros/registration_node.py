@@ -206,9 +206,11 @@ class RegistrationNode(SgregNode):
         if result.peer != self.name and result.peer not in self.request_pubs:
             # a link to an agent this node does not listen to (at most max_peers): results
             # naming made-up agents would grow the merge without bound
-            self.refusal(self.agent.refuse("result_names_unknown_agent", f"result of {result.agent} "
-                                           f"about '{result.peer}', an agent not listened to: left out"),
-                         key=f"result_names_unknown_agent {result.agent}")
+            # counted, not refused: a fleet larger than max_peers, or fixed peers that name part
+            # of it, hears such results all the time
+            self.agent.counters["result_names_unknown_agent"] += 1
+            self.refusal(f"result of {result.agent} about '{result.peer}', an agent not listened "
+                         "to: left out of the merge", key=f"result_names_unknown_agent {result.agent}")
             return
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp)

@@ -28,6 +28,7 @@ def run(args) -> int:
 
     rclpy.init()
     node = rclpy.create_node("sgreg_play")
+    print(f"sgreg play: playing {args.bag}", file=sys.stderr, flush=True)
     try:
         report = play_bag(node, args.bag, rate=args.rate, topics=args.topics, delay=args.delay,
                           wait_subscribers=args.wait_subscribers, clock_hz=args.clock,

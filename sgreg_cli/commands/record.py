@@ -32,7 +32,8 @@ def run(args) -> int:
 
     def discover():
         for topic, types in node.get_topic_names_and_types():
-            if topic in args.topics and topic not in recorder.connections and topic not in refused:
+            if topic in args.topics and topic not in recorder.connections and topic not in refused \
+                    and node.get_publishers_info_by_topic(topic):    # its QoS is the publishers'
                 try:
                     recorder.add_topic(topic, types[0])
                     print(f"recording {topic} ({types[0]})", flush=True)

@@ -705,6 +705,11 @@ class Peers:
             self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
             self._drop_dense(link)
             return
+        if link.kept is not None and not _levelled_alike(link.kept.peer_level, msg.level):
+            # pairs of the peer's old levelling made it back (a candidate's, confirmed after a
+            # dense answer at the new one): they go, the peer's points of now stay
+            link.kept = None
+            self._count("kept_dropped")
         if link.kept is None:
             return
         own = self.agent.features
@@ -752,14 +757,14 @@ class Peers:
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,
                              kept)
             reason = self._link_rules(link, reg, hyp, now, beside, vouched)
-        if vouched:
-            if reason == "ok":
-                self._count("vouched_by_peer")
-            elif reason == "low_confidence":
-                reg.success, reg.reason = False, reason
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
+        if vouched:
+            if reason == "ok":
+                self._count("vouched_by_peer")
+            else:       # not taken: the estimate is what the verdict said
+                reg.success, reg.reason = False, "low_confidence"
         if reason != "ok":
             self._count(reason)
         est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
@@ -794,10 +799,12 @@ class Peers:
         beside: an unpublished estimate of the same query that passed the verdict
         (coarse_with_dense), one more estimate that may confirm hyp; it changes nothing else.
         vouched: hyp fell short only of the verdict's confidence and the peer's confirmed link
-        agrees with it (_vouched): it is taken where that link confirms it, and is otherwise
-        what the verdict said, "low_confidence": no candidate, no second estimate, and no
-        passing dense estimate for the peer to take as its own witness (the peer's link would
-        vouch for itself)."""
+        agrees with it (_vouched): it keeps a confirmed link it agrees with, confirms a first
+        one where the peer's word does (under first_link_hold_s only a held candidate it agrees
+        with), and is otherwise what the verdict said, "low_confidence": no candidate, no second
+        estimate, and no passing dense estimate for the peer to take as its own witness (the
+        peer's link would vouch for itself). One that contradicts a confirmed link withdraws
+        it without becoming the candidate."""
         merged = reg.mode == "merged"
         if not reg.success:
             if reg.reason == "ambiguous":
@@ -825,12 +832,14 @@ class Peers:
             d = rte(hyp.T, link.confirmed.T), rre(hyp.T, link.confirmed.T)
             self._withdraw(link, "withdrawn", f"a {reg.mode} estimate from new data ({reg.inliers} "
                            f"inliers on {reg.evidence.objects} objects) lies {d[0]:.2f} m / "
-                           f"{d[1]:.1f} deg from it", hyp, now)
+                           f"{d[1]:.1f} deg from it", None if vouched else hyp, now)
             return "contradicted"
         if merged:      # kept correspondences without a confirmed link: nothing new
             return "awaiting_confirmation"
         if vouched:
-            if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
+            held = self.cfg.first_link_hold_s <= 0 or (
+                link.candidate is not None and self._agree(hyp.T, link.candidate.T) and self._held_long(link, now))
+            if held and self._witnessed(hyp, link.peer_id, now):
                 self._confirm(link, hyp, "confirmed_by_peer")
                 return "ok"
             return "low_confidence"

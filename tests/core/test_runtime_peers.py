@@ -334,6 +334,9 @@ def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(mo
     reg, est = first_dense(replace(cfg, first_link_min_objects=1000), T_ba)
     assert est.reason == "low_confidence" and not est.verified and not est.registration.success
     assert reg.links["b"].candidate is None and reg.counters["vouched_by_peer"] == 0
+    # under first_link_hold_s it waits like any first estimate: no held candidate, no link
+    reg, est = first_dense(replace(cfg, first_link_hold_s=10.0), T_ba)
+    assert est.reason == "low_confidence" and not est.verified and reg.counters["vouched_by_peer"] == 0
 
 
 def test_after_a_tie_only_the_peers_word_confirms_for_a_while(model, graphs):
@@ -872,6 +875,18 @@ def test_kept_correspondences_go_when_a_dense_answer_comes_at_a_new_levelling(mo
     reg.on_dense(dense, now=2.0)
     assert reg.counters["kept_dropped"] == 1
     assert link.kept is None or np.allclose(link.kept.peer_level, dense.level)
+
+
+def test_kept_pairs_of_an_old_levelling_go_whichever_way_they_came_back(model, graphs):
+    """Kept pairs of the peer's old levelling (a candidate's, confirmed after an answer at the
+    new one) go at the next coarse graph; the peer's points of now stay."""
+    from scipy.spatial.transform import Rotation
+
+    a, b, reg, _ = confirmed_link(model, graphs)
+    link = reg.links["b"]
+    link.kept = replace(link.kept, peer_level=Rotation.from_rotvec([0.0, 0.02, 0.0]).as_matrix())
+    reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert reg.counters["kept_dropped"] == 1 and link.dense_cloud is not None
 
 
 def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, graphs):

@@ -85,7 +85,8 @@ def test_play_ends_cleanly_on_sigterm(tmp_path):
     write_bag(src, n=300)           # 30 s of messages
     play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "0"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)
+    assert play.stderr.readline().startswith("sgreg play: playing")    # rclpy's handlers are in
+    time.sleep(2.0)
     play.send_signal(signal.SIGTERM)
     out, err = play.communicate(timeout=20)
     assert play.returncode == 0, err
