@@ -205,9 +205,8 @@ class RegistrationNode(SgregNode):
     def _take_result(self, result) -> None:
         if result.peer != self.name and result.peer not in self.request_pubs:
             # a link to an agent this node does not listen to (at most max_peers): results
-            # naming made-up agents would grow the merge without bound
-            # counted, not refused: a fleet larger than max_peers, or fixed peers that name part
-            # of it, hears such results all the time
+            # naming made-up agents would grow the merge without bound. Counted, not refused: a
+            # fleet larger than max_peers, or fixed peers naming part of it, hears such results
             self.agent.counters["result_names_unknown_agent"] += 1
             self.refusal(f"result of {result.agent} about '{result.peer}', an agent not listened "
                          "to: left out of the merge", key=f"result_names_unknown_agent {result.agent}")

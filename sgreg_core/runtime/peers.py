@@ -516,11 +516,7 @@ class Peers:
         t0 = time.perf_counter()
         peer = self._dense_features(msg, timings)
         link.dense, link.dense_cloud, link.prompt = msg, msg.points, False
-        if link.kept is not None and not _levelled_alike(link.kept.peer_level, msg.level):
-            # the peer levelled its map anew: the kept pairs are in its frame of then (whether
-            # or not this answer's estimate replaces them)
-            link.kept = None
-            self._count("kept_dropped")
+        self._drop_kept_of_old_levelling(link, msg.level)   # whether or not this answer replaces them
         link.coarse_data = None     # a coarse estimate on the same graphs is now verifiable
         beside = self._coarse_beside(link, msg, timings, now)
         reg = register_features(self.model, peer, self.agent.features, msg.points,
@@ -705,11 +701,9 @@ class Peers:
             self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
             self._drop_dense(link)
             return
-        if link.kept is not None and not _levelled_alike(link.kept.peer_level, msg.level):
-            # pairs of the peer's old levelling made it back (a candidate's, confirmed after a
-            # dense answer at the new one): they go, the peer's points of now stay
-            link.kept = None
-            self._count("kept_dropped")
+        # pairs of the peer's old levelling can come back (a candidate's, confirmed after a
+        # dense answer at the new one): they go, the peer's points of now stay
+        self._drop_kept_of_old_levelling(link, msg.level)
         if link.kept is None:
             return
         own = self.agent.features
@@ -719,6 +713,13 @@ class Peers:
             self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
                      f"{shift:.2f} m since the dense exchange")
             self._drop_dense(link)
+
+    def _drop_kept_of_old_levelling(self, link: PeerLink, peer_level: np.ndarray) -> None:
+        """Forget the kept correspondences when the peer has levelled its map anew since: they
+        are in its levelled frame of then."""
+        if link.kept is not None and not _levelled_alike(link.kept.peer_level, peer_level):
+            link.kept = None
+            self._count("kept_dropped")
 
     def _drop_dense(self, link: PeerLink) -> None:
         """Forget the kept correspondences and the peer's points. Without them nothing about
