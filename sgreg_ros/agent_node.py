@@ -7,7 +7,6 @@ decisions live in sgreg_core.runtime.agent.AgentCore; its parameters are declare
 configs (AgentConfig, GraphConfig, HealthConfig and AgentNodeConfig below)."""
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
 
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap
@@ -86,7 +85,7 @@ class AgentNode(SgregNode):
         self.guarded("the coarse graph", self.publish_coarse)
 
     def publish_coarse(self) -> None:
-        now = time.monotonic()
+        now = self.clock_s()
         if self.core.coarse_due(now):
             msg = convert.coarse_to_msg(self.core.broadcast(now), self.encoding)
             self.coarse_pub.publish(self.auth.sign(msg, self.topic("sgreg/coarse")))
@@ -105,7 +104,7 @@ class AgentNode(SgregNode):
         self.guarded(f"dense request {req.sequence} of {req.from_agent!r}", lambda: self._answer(req))
 
     def _answer(self, req) -> None:
-        dense, why = self.core.answer_request(req, time.monotonic())
+        dense, why = self.core.answer_request(req, self.clock_s())
         if dense is None:
             return self.refusal(why, key=" ".join(why.split()[:2]))
         msg = convert.dense_to_msg(dense, self.encoding)

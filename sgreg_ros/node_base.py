@@ -10,6 +10,7 @@ from rclpy.node import Node
 
 from sgreg_core.net.model import SGRegModel, load_model
 from sgreg_core.runtime.auth import AuthConfig
+from sgreg_core.runtime.clock import RunClock
 from sgreg_core.runtime.health import Health, HealthConfig
 
 from . import convert, qos
@@ -29,7 +30,8 @@ class SgregNode(Node):
         self.table = table
         self.p = declare_and_read(self, table)
         self.name = agent_name_from(self, self.p["agent_name"])
-        self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), time.monotonic())
+        self.run_clock = RunClock()
+        self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), self.clock_s())
         self.auth = MessageAuth(AuthConfig(**pick(AuthConfig, self.p)), self.name, self.get_logger())
         self.problem: str | None = None      # why the node cannot do its job at all
         self.last_map_at: float | None = None
@@ -78,7 +80,7 @@ class SgregNode(Node):
         if why:
             self.refusal(why)
         else:
-            self.last_map_at = time.monotonic()
+            self.last_map_at = self.clock_s()
 
     def refusal(self, why: str, key: str | None = None) -> None:
         """Log a refused input, at most once per LOG_PERIOD_S per kind (the first words, or
@@ -106,11 +108,18 @@ class SgregNode(Node):
         return ""
 
     def publish_diagnostics(self) -> None:
-        level, message = self.health.status(time.monotonic(), self.refused(), self.last_map_at, self.problem)
+        level, message = self.health.status(self.clock_s(), self.refused(), self.last_map_at, self.problem)
         self.diag_pub.publish(convert.diagnostics_msg(
             self.get_fully_qualified_name(), self.name, level, message or self.summary(),
             self.counters(), self.now()))
 
     def now(self) -> float:
-        """ROS time (the bag's /clock under use_sim_time)."""
+        """ROS time (the bag's /clock under use_sim_time): what outputs are stamped with."""
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def clock_s(self) -> float:
+        """What the core's intervals and timeouts run on (runtime/clock.py): the bag's clock
+        under use_sim_time, so that a paused or faster bag keeps the link's timing; never
+        going back."""
+        clock = self.get_clock()
+        return self.run_clock.read(clock.ros_time_is_active, clock.now().nanoseconds, time.monotonic())

@@ -17,7 +17,6 @@ RegistrationNodeConfig below)."""
 from __future__ import annotations
 
 import re
-import time
 from dataclasses import dataclass, replace
 
 from geometry_msgs.msg import TransformStamped
@@ -62,11 +61,11 @@ class RegistrationNodeConfig:
 
 
 # the agent's own map is refused or kept as the agent node does; it answers no requests and
-# sends no coarse graphs
+# sends no coarse graphs. dense_min_interval_s stays: it is when the peers' agents answer again,
+# which a prompt request waits for (PeersConfig.prompt_request); one value serves the fleet
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
                    PoseConfig, MergeConfig, HealthConfig, AuthConfig,
-                   skip=("dense_min_interval_s", "dense_answers_per_s", "heartbeat_period_s",
-                         "quiet_after_s"))
+                   skip=("dense_answers_per_s", "heartbeat_period_s", "quiet_after_s"))
 COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
 
 
@@ -132,6 +131,9 @@ class RegistrationNode(SgregNode):
         core = pick(PeersConfig, changes)
         if core:
             self.peers.cfg = replace(self.peers.cfg, **core)
+        own = pick(AgentConfig, changes)
+        if own:
+            self.agent.cfg = replace(self.agent.cfg, **own)
 
     # ---- peers ---------------------------------------------------------------------------
     def on_discovery(self) -> None:
@@ -180,20 +182,20 @@ class RegistrationNode(SgregNode):
         self.map_taken(why)
         if why is None:
             self.merger.set_level(self.name, self.agent.level.R)
-            self.guarded("the own map's estimates", lambda: self.publish_all(self.peers.on_own_map(time.monotonic())))
+            self.guarded("the own map's estimates", lambda: self.publish_all(self.peers.on_own_map(self.clock_s())))
 
     def on_coarse(self, raw: bytes, peer: str) -> None:
         graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse", peer)
         if graph is not None:
             self.merger.set_level(peer, graph.level)
             self.guarded(f"coarse graph {graph.sequence} of {graph.agent_id}",
-                         lambda: self.publish_all([self.peers.on_coarse(graph, time.monotonic())]))
+                         lambda: self.publish_all([self.peers.on_coarse(graph, self.clock_s())]))
 
     def on_dense(self, raw: bytes, peer: str) -> None:
         graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense", peer)
         if graph is not None:
             self.guarded(f"dense graph {graph.sequence} of {graph.agent_id}",
-                         lambda: self.publish(self.peers.on_dense(graph, time.monotonic())))
+                         lambda: self.publish(self.peers.on_dense(graph, self.clock_s())))
 
     def on_result(self, raw: bytes, peer: str) -> None:
         """A peer's registration result: its links, for the merger."""
@@ -215,7 +217,7 @@ class RegistrationNode(SgregNode):
                          result.link, result.confidence, result.stamp)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
             self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode, result.reason,
-                                      result.link, time.monotonic())
+                                      result.link, self.clock_s())
 
     def on_merge(self) -> None:
         self.guarded("the merge", self._merge)
@@ -233,7 +235,7 @@ class RegistrationNode(SgregNode):
                                                self.now()))
 
     def on_tick(self) -> None:
-        now = time.monotonic()
+        now = self.clock_s()
         for request in self.peers.on_tick(now):
             self.send_request(request)
         for peer in self.peers.expire(now):

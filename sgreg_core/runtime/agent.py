@@ -52,7 +52,8 @@ class AgentConfig:
     name: str = "a"
     min_nodes: int = param(3, "graphs with fewer nodes are neither sent nor registered", 1, 1000)
     max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
-    dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval",
+    dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval (a prompt "
+                                        "request waits as long)",
                                         0.0, 3600.0, live=True)
     dense_answers_per_s: float = param(2.0, "dense answers per second to all requesters together",
                                        0.1, 100.0, live=True)

@@ -72,8 +72,9 @@ class Watcher:
     def publisher(self, cls, topic, profile):
         return self.node.create_publisher(cls, topic, profile)
 
-    def spin_until(self, done, timeout, publish_maps=None, period=1.0):
-        """Spin; every `period` s publish the maps in publish_maps ({name: InstanceMap})."""
+    def spin_until(self, done, timeout, publish_maps=None, period=1.0, each=None):
+        """Spin; every `period` s publish the maps in publish_maps ({name: InstanceMap}); call
+        each() on every turn (e.g. a test's /clock)."""
         deadline = time.monotonic() + timeout
         seq = {}
         next_pub = 0.0
@@ -83,6 +84,8 @@ class Watcher:
                     seq[name] = seq.get(name, 0) + 1
                     self.map_pubs[name].publish(instance_map_to_msg(m, name, seq[name], time.time()))
                 next_pub = time.monotonic() + period
+            if each is not None:
+                each()
             rclpy.spin_once(self.node, timeout_sec=0.05)
             if done():
                 return True

@@ -42,7 +42,8 @@ def test_declarations_come_from_the_dataclasses():
         p = by_name[name]
         assert (p.default, p.description, p.low, p.high) == (default, help_text, low, high)
     assert {"coarse_rate_hz", "feature_encoding"} <= {p.name for p in AGENT}
-    assert "dense_min_interval_s" not in by_name          # the registration node answers no requests
+    assert "dense_answers_per_s" not in by_name           # the registration node answers no requests
+    assert "dense_min_interval_s" in by_name              # but waits for the peers' answer interval
 
 
 @pytest.mark.parametrize("param,value", [

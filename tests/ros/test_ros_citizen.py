@@ -13,6 +13,7 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rosgraph_msgs.msg import Clock
 from sgreg_msgs.msg import CoarseGraph, DenseRequest, RegistrationResult
 
 from sgreg_cli.bags import play_bag
@@ -192,6 +193,48 @@ def test_sim_time_from_play_clock_stamps_outputs_in_bag_time(ros, tmp_path):
     assert all(start <= m.header.stamp.sec <= end for m in coarse), [m.header.stamp.sec for m in coarse[:5]]
     assert all(start <= r.header.stamp.sec <= end for r in results)
     assert len(coarse) >= 5   # the coarse timer ran on the bag's clock
+
+
+class _TestClock:
+    """/clock from the test, from 1.7e9 s on: running with the wall clock, or paused."""
+
+    def __init__(self, node):
+        self.pub = node.create_publisher(Clock, "/clock", 10)
+        self.t, self.last, self.running = 1_700_000_000.0, None, True
+
+    def __call__(self):
+        now = time.monotonic()
+        if self.running and self.last is not None:
+            self.t += now - self.last
+        self.last = now
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(self.t * 1e9), 1_000_000_000)
+        self.pub.publish(msg)
+
+
+def test_a_paused_clock_pauses_the_link_timers(ros, tmp_path):
+    """Nodes under use_sim_time, a bag paused longer than peer_timeout_s: the registration's
+    intervals run on the bag's clock, so when it goes on no peer has been forgotten as silent."""
+    maps, _ = agent_maps(["a", "b"], seed=5)
+    procs = processes.start_agents(["a", "b"], overrides={**FAST, "use_sim_time": True, "peer_timeout_s": 10.0},
+                                   log_dir=tmp_path)
+    w = Watcher(["a", "b"])
+    clock = _TestClock(w.node)
+    try:
+        assert w.wait_ready(["a", "b"]), f"dead: {alive(procs)}"
+        assert w.spin_until(lambda: ("a", "b") in w.transforms and ("b", "a") in w.transforms, 120,
+                            publish_maps=maps, each=clock), f"not registered; dead: {alive(procs)}"
+        clock.running = False
+        w.spin_until(lambda: False, 13.0, each=clock)       # paused, the maps too
+        clock.running = True
+        w.diagnostics.clear()
+        assert w.spin_until(lambda: all(f"/{n}/registration" in w.diagnostics for n in "ab"), 20, each=clock)
+        w.spin_until(lambda: False, 3.0, each=clock)
+        assert [w.counter(f"/{n}/registration", "peer_expired") for n in "ab"] == [0, 0]
+        assert not alive(procs)
+    finally:
+        processes.stop(procs)
+        w.close()
 
 
 def test_link_goes_quiet_when_maps_stop_changing(ros, tmp_path):
