@@ -53,13 +53,15 @@ def decode(raw: bytes, cls):
         raise ConversionError(f"undecodable {cls.__name__} ({len(raw)} bytes): {exc}") from None
 
 
-def stamp_to_sec(t: Time) -> float:
-    return float(t.sec) + 1e-9 * float(t.nanosec)
+# Stamps travel as integer nanoseconds, so that an output carries its map's stamp to the
+# nanosecond (float seconds of today's epoch resolve 240 ns)
+def stamp_to_ns(t: Time) -> int:
+    return int(t.sec) * 1_000_000_000 + int(t.nanosec)
 
 
-def sec_to_stamp(s: float) -> Time:
-    sec = int(np.floor(s))
-    return Time(sec=sec, nanosec=int(round((s - sec) * 1e9)) % 1_000_000_000)
+def ns_to_stamp(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def _f32(values, n: int, name: str) -> np.ndarray:
@@ -101,14 +103,14 @@ def take_instance_map(raw: bytes, take, refuse) -> str | None:
     except ConversionError as exc:
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {exc}")
     try:
-        return take(imap, int(msg.sequence), stamp_to_sec(msg.header.stamp))
+        return take(imap, int(msg.sequence), stamp_to_ns(msg.header.stamp))
     except Exception as exc:  # a bug must cost one map, not the node
         return refuse("internal_error", f"instance map {msg.sequence} failed: {exc!r}")
 
 
-def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, stamp: float) -> InstanceMap:
+def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, stamp_ns: int) -> InstanceMap:
     msg = InstanceMap()
-    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = f"{agent_id}/map"
     msg.agent_id, msg.sequence = agent_id, int(sequence)
     ids = sorted(imap.labels)
@@ -124,7 +126,7 @@ def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, sta
 # ---- coarse and dense graphs ---------------------------------------------------------------
 def coarse_to_msg(g: GraphMessage, encoding: int) -> CoarseGraph:
     msg = CoarseGraph()
-    msg.header.stamp = sec_to_stamp(g.stamp)
+    msg.header.stamp = ns_to_stamp(g.stamp_ns)
     msg.header.frame_id = f"{g.agent_id}/map"
     msg.agent_id, msg.sequence, msg.map_sequence = g.agent_id, int(g.sequence), int(g.map_sequence)
     msg.weights_id = g.weights_id
@@ -151,7 +153,7 @@ def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
         raise ConversionError(f"features: {exc}") from None
     return GraphMessage(agent_id=msg.agent_id, sequence=int(msg.sequence),
                         map_sequence=int(msg.map_sequence), weights_id=msg.weights_id,
-                        stamp=stamp_to_sec(msg.header.stamp),
+                        stamp_ns=stamp_to_ns(msg.header.stamp),
                         nodes=NodeFeatures(node_ids=np.asarray(msg.node_ids, np.int64),
                                            centers=_f32(msg.centers, n, "centers"), descriptor=x),
                         extents=_f32(msg.extents, n, "extents"), level=_level(msg.level))
@@ -207,9 +209,9 @@ def dense_from_msg(msg: DenseGraph) -> GraphMessage:
 
 
 # ---- requests and results ------------------------------------------------------------------
-def request_to_msg(r: DenseRequestMessage, stamp: float) -> DenseRequest:
+def request_to_msg(r: DenseRequestMessage, stamp_ns: int) -> DenseRequest:
     msg = DenseRequest()
-    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.from_agent, msg.to_agent = r.from_agent, r.to_agent
     msg.sequence, msg.coarse_sequence = int(r.sequence), int(r.coarse_sequence)
     msg.weights_id = r.weights_id
@@ -224,9 +226,9 @@ def request_from_msg(msg: DenseRequest) -> DenseRequestMessage:
                                weights_id=msg.weights_id, node_ids=np.asarray(msg.node_ids, np.int64))
 
 
-def transform_msg(T: np.ndarray, agent_id: str, peer_id: str, stamp: float) -> TransformStamped:
+def transform_msg(T: np.ndarray, agent_id: str, peer_id: str, stamp_ns: int) -> TransformStamped:
     t = TransformStamped()
-    t.header.stamp = sec_to_stamp(stamp)
+    t.header.stamp = ns_to_stamp(stamp_ns)
     t.header.frame_id = f"{peer_id}/map"
     t.child_frame_id = f"{agent_id}/map"
     t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = (
@@ -237,11 +239,11 @@ def transform_msg(T: np.ndarray, agent_id: str, peer_id: str, stamp: float) -> T
     return t
 
 
-def tf_msg(poses: dict, merged_frame: str, stamp: float) -> TFMessage:
+def tf_msg(poses: dict, merged_frame: str, stamp_ns: int) -> TFMessage:
     """/tf: one transform per attached agent, merged_frame -> <id>/map (p_merged = T p_map)."""
     msg = TFMessage()
     for agent, T in sorted(poses.items()):
-        t = transform_msg(T, agent, "", stamp)
+        t = transform_msg(T, agent, "", stamp_ns)
         t.header.frame_id = merged_frame
         msg.transforms.append(t)
     return msg
@@ -256,13 +258,13 @@ def transform_from_msg(t: TransformStamped) -> np.ndarray:
     return T
 
 
-def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp: float,
+def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp_ns: int,
                   counters: dict) -> RegistrationResult:
     msg = RegistrationResult()
-    msg.header.stamp = sec_to_stamp(stamp)
+    msg.header.stamp = ns_to_stamp(stamp_ns)
     msg.header.frame_id = f"{e.peer_id}/map"
     msg.agent_id, msg.peer_id, msg.sequence = agent_id, e.peer_id, int(sequence)
-    msg.transform = transform_msg(e.T, agent_id, e.peer_id, stamp)
+    msg.transform = transform_msg(e.T, agent_id, e.peer_id, stamp_ns)
     msg.verified, msg.mode, msg.reason, msg.link = bool(e.verified), e.mode, e.reason, e.link
     msg.node_matches, msg.correspondences, msg.inliers = (
         int(e.node_matches), int(e.correspondences), int(e.inliers))
@@ -295,7 +297,7 @@ class Result:
     reason: str
     link: str
     confidence: float
-    stamp: float
+    stamp_ns: int
     node_pairs: np.ndarray   # (k, 2) (agent node id, peer node id)
     mode: str = ""           # "coarse", "dense" or "merged"
 
@@ -313,16 +315,16 @@ def result_from_msg(msg: RegistrationResult) -> Result:
     if pairs.size % 2:
         raise ConversionError("inlier_node_pairs holds an odd number of ids")
     return Result(msg.agent_id, msg.peer_id, T, bool(msg.verified), msg.reason, msg.link,
-                  float(np.clip(msg.confidence, 0.0, 1.0)), stamp_to_sec(msg.header.stamp),
+                  float(np.clip(msg.confidence, 0.0, 1.0)), stamp_to_ns(msg.header.stamp),
                   pairs.reshape(-1, 2), msg.mode)
 
 
 def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,
-                    stamp: float) -> DiagnosticArray:
+                    stamp_ns: int) -> DiagnosticArray:
     """One DiagnosticStatus per node (name: the node's full name, hardware_id: the agent id), with
     every counter as a key/value: rqt_robot_monitor and Foxglove display it."""
     arr = DiagnosticArray()
-    arr.header.stamp = sec_to_stamp(stamp)
+    arr.header.stamp = ns_to_stamp(stamp_ns)
     status = DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=agent_id)
     status.values = [KeyValue(key=k, value=str(v)) for k, v in sorted(counters.items())]
     arr.status = [status]

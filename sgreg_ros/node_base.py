@@ -111,11 +111,11 @@ class SgregNode(Node):
         level, message = self.health.status(self.clock_s(), self.refused(), self.last_map_at, self.problem)
         self.diag_pub.publish(convert.diagnostics_msg(
             self.get_fully_qualified_name(), self.name, level, message or self.summary(),
-            self.counters(), self.now()))
+            self.counters(), self.now_ns()))
 
-    def now(self) -> float:
+    def now_ns(self) -> int:
         """ROS time (the bag's /clock under use_sim_time): what outputs are stamped with."""
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self.get_clock().now().nanoseconds
 
     def clock_s(self) -> float:
         """What the core's intervals and timeouts run on (runtime/clock.py): the bag's clock

@@ -192,7 +192,8 @@ class RegistrationNode(SgregNode):
                          lambda: self.publish_all([self.peers.on_coarse(graph, self.clock_s())]))
 
     def on_dense(self, raw: bytes, peer: str) -> None:
-        graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense", peer)
+        graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense", peer,
+                             wanted=lambda msg: self.peers.answers_me(msg.requester))
         if graph is not None:
             self.guarded(f"dense graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish(self.peers.on_dense(graph, self.clock_s())))
@@ -214,7 +215,7 @@ class RegistrationNode(SgregNode):
                          "to: left out of the merge", key=f"result_names_unknown_agent {result.agent}")
             return
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
-                         result.link, result.confidence, result.stamp)
+                         result.link, result.confidence, result.stamp_ns)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
             self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode, result.reason,
                                       result.link, self.clock_s())
@@ -224,7 +225,7 @@ class RegistrationNode(SgregNode):
 
     def _merge(self) -> None:
         """Merge every agent's links; /tf gets the attached agents' maps in the merged frame."""
-        for line in self.merger.update(self.now()):
+        for line in self.merger.update(self.now_ns()):
             self.get_logger().info(line)
         self.peers.follow(self.merger)
         result = self.merger.result
@@ -232,7 +233,7 @@ class RegistrationNode(SgregNode):
         self.agent.counters["links_rejected"] = len(result.rejected)
         if len(result.attached) > 1:
             self.tf_pub.publish(convert.tf_msg(self.merger.raw_poses(), self.merger.cfg.merged_frame,
-                                               self.now()))
+                                               self.now_ns()))
 
     def on_tick(self) -> None:
         now = self.clock_s()
@@ -245,10 +246,11 @@ class RegistrationNode(SgregNode):
         super().guarded(what, work, self.agent.refuse)
 
     # ---- helpers -------------------------------------------------------------------------
-    def _decode(self, fn, raw: bytes, cls, topic: str, peer: str):
+    def _decode(self, fn, raw: bytes, cls, topic: str, peer: str, wanted=None):
         """What a peer's message on /<peer>/sgreg/<topic> carries (fn of the message), or None
         (refusal counted): oversized, undecodable, sent in another agent's name, or (with a
-        keystore) not signed by the peer's key."""
+        keystore) not signed by the peer's key; also None when wanted(message) says the message
+        is not for this agent (nothing more of it is converted or checked)."""
         what = {"coarse": "coarse graph", "dense": "dense graph"}.get(topic, "result")
         if len(raw) > self.p["max_message_mb"] * 1e6:   # refused before a copy is decoded
             size, raw = len(raw), None
@@ -257,6 +259,8 @@ class RegistrationNode(SgregNode):
             return None
         try:
             msg = convert.decode(raw, cls)
+            if wanted is not None and not wanted(msg):
+                return None
             out = fn(msg)
         except convert.ConversionError as exc:
             self.refusal(self.agent.refuse("malformed_message", f"malformed {what} refused: {exc}"),
@@ -274,7 +278,7 @@ class RegistrationNode(SgregNode):
     def send_request(self, request) -> None:
         pub = self.request_pubs.get(request.to_agent)
         if pub is not None:
-            msg = convert.request_to_msg(request, self.now())
+            msg = convert.request_to_msg(request, self.now_ns())
             pub.publish(self.auth.sign(msg, f"/{request.to_agent}/sgreg/dense_request"))
 
     def publish_all(self, outcomes) -> None:
@@ -287,13 +291,13 @@ class RegistrationNode(SgregNode):
         if estimate is None:
             return
         self.result_seq += 1
-        msg = convert.result_to_msg(estimate, self.name, self.result_seq, estimate.stamp,
+        msg = convert.result_to_msg(estimate, self.name, self.result_seq, estimate.stamp_ns,
                                     dict(self.peers.counters))
         self.result_pub.publish(self.auth.sign(msg, self.topic("sgreg/registration")))
         self.merger.take(self.name, estimate.peer_id, estimate.T, estimate.verified, estimate.reason,
-                         estimate.link, estimate.confidence, estimate.stamp)
+                         estimate.link, estimate.confidence, estimate.stamp_ns)
         if estimate.verified:
-            self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, estimate.stamp))
+            self.transform_pub.publish(convert.transform_msg(estimate.T, self.name, estimate.peer_id, estimate.stamp_ns))
             self.matches[estimate.peer_id] = estimate.registration.inlier_node_pairs()[:, ::-1]
         elif estimate.link != "confirmed":      # withdrawn: its matches are no longer shown
             self.matches.pop(estimate.peer_id, None)

@@ -61,7 +61,7 @@ def run(args) -> int:
             if time.monotonic() >= next_map:
                 seq[0] += 1
                 for n, m in maps.items():
-                    map_pubs[n].publish(instance_map_to_msg(m, n, seq[0], time.time()))
+                    map_pubs[n].publish(instance_map_to_msg(m, n, seq[0], time.time_ns()))
                 next_map = time.monotonic() + 1.0
             if flood:
                 flood()

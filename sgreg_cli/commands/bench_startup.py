@@ -83,7 +83,7 @@ def _node_ready(node, exe: str, agent: str, imap) -> tuple[float, float]:
     sent = False
     while not got and time.perf_counter() - t0 < 60:
         if not sent and pub.get_subscription_count() > 0:
-            pub.publish(instance_map_to_msg(imap, agent, 1, time.time()))
+            pub.publish(instance_map_to_msg(imap, agent, 1, time.time_ns()))
             sent = True
         rclpy.spin_once(node, timeout_sec=0.01)
     ready = time.perf_counter() - t0 if got else float("nan")

@@ -174,12 +174,12 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store,
                               offered_qos_profiles=[offered_qos(qos_for(GT_TOPIC))])
         for i, (t, name, imap) in enumerate(events):
-            stamp = T_ORIGIN + t
-            msg = instance_map_to_msg(imap, name, seq[name], stamp)
+            stamp_ns = int(T_ORIGIN) * 1_000_000_000 + int(round(t * 1e9))
+            msg = instance_map_to_msg(imap, name, seq[name], stamp_ns)
             seq[name] += 1
-            w.write(conns[name], int(stamp * 1e9), serialize_message(msg))
+            w.write(conns[name], stamp_ns, serialize_message(msg))
             if name == "a":
-                w.write(gt, int(stamp * 1e9) + 1, serialize_message(transform_msg(T, "a", "b", stamp)))
+                w.write(gt, stamp_ns + 1, serialize_message(transform_msg(T, "a", "b", stamp_ns)))
             if i % 10 == 0 or i == len(events) - 1:
                 log(f"writing: {i + 1}/{len(events)} messages")
     info = {

@@ -45,7 +45,7 @@ def merge_report(records, T_scene_map: dict, poses: dict | None = None, step_s: 
         nonlocal i
         while i < len(records) and stamp[i] <= t:
             r = records[i]
-            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, stamp[i])
+            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, int(stamp[i] * 1e9))
             i += 1
         merger.update()
 

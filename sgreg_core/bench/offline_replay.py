@@ -54,6 +54,11 @@ class OfflineReplayConfig:
     seed: int = 0
 
 
+def _ns(t: float) -> int:
+    """A map stamp (ns) of a moment of the virtual clock (s)."""
+    return int(round(t * 1e9))
+
+
 def _over_the_wire(msg: GraphMessage, encoding: int) -> GraphMessage:
     """The message as a peer decodes it: descriptors through the wire encoding."""
     desc = msg.nodes.descriptor
@@ -89,7 +94,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             for m in mergers.values():       # every agent hears every agent's results (and graphs)
                 m.set_level(agent, agents[agent].level.R)
                 m.set_level(est.peer_id, agents[est.peer_id].level.R)
-                m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, now)
+                m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, est.stamp_ns)
             # the peer hears the result too (its witness for the link, Peers.on_peer_result)
             peers_of[est.peer_id].on_peer_result(agent, est.T, est.verified, est.mode, est.reason, est.link, now)
             records.append(ResultRecord(t=now, agent=agent, peer=est.peer_id, T=est.T,
@@ -105,7 +110,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             break
         agent = agents[name]
         if kind == 0:
-            why = peers_of[name].take_own_map(imap, map_seq[name], now)
+            why = peers_of[name].take_own_map(imap, map_seq[name], _ns(now))
             map_seq[name] += 1
             if why is not None:
                 log(f"{name}: {why}")
@@ -116,7 +121,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                     _deliver(req, agents, peers_of, name, encoding, now, record)
             continue
         heapq.heappush(events, (now + cfg.coarse_period_s, 1, 0, name, None))
-        for line in mergers[name].update(now):
+        for line in mergers[name].update(_ns(now)):
             log(f"{name}: {line}")
         peers_of[name].follow(mergers[name])
         for req in peers_of[name].on_tick(now):
@@ -133,7 +138,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                 _deliver(req, agents, peers_of, peer, encoding, now, record)
     if merges is not None:
         for name, m in mergers.items():
-            m.update(end)
+            m.update(_ns(end))
             merges[name] = m.result
     if counters is not None:
         for name in names:

@@ -79,7 +79,7 @@ class AgentCore:
         self.features: NodeFeatures | None = None
         self.digest = ""        # graph_digest of the current graph
         self.map_sequence = 0
-        self.stamp = 0.0
+        self.stamp_ns = 0     # the map's stamp (ns), carried by every message made from it
         self.timing_ms: dict = {}
         self.level = Levelling()      # how the current map was levelled
         self._reference: tuple[tuple, ReferenceCloud] | None = None
@@ -105,19 +105,19 @@ class AgentCore:
         self.refused += 1
         return why
 
-    def take_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> str | None:
+    def take_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> str | None:
         """A new instance map from the agent's own front end: None when it became the agent's
         map, else the one-line reason it was refused (counted): the same sequence again, or a
         map update_map refuses."""
         if self.ready and map_sequence == self.map_sequence:
             return self.refuse("duplicate_map", f"instance map {map_sequence} received twice; ignored")
         try:
-            self.update_map(imap, map_sequence, stamp)
+            self.update_map(imap, map_sequence, stamp_ns)
         except AgentInputError as exc:
             return self.refuse("bad_instance_map", f"instance map {map_sequence} refused: {exc}")
         return None
 
-    def update_map(self, imap: InstanceMap, map_sequence: int, stamp: float) -> SceneGraph:
+    def update_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> SceneGraph:
         """Rebuild graph and features from a new instance map; raises AgentInputError."""
         if imap.points.shape[0] > self.cfg.max_points_in_map:
             raise AgentInputError(f"instance map has {imap.points.shape[0]} points "
@@ -139,7 +139,7 @@ class AgentCore:
         if graph.num_nodes < self.cfg.min_nodes:
             raise AgentInputError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
                                   f"(min_nodes={self.cfg.min_nodes})")
-        self.set_graph(graph, map_sequence, stamp, timings)
+        self.set_graph(graph, map_sequence, stamp_ns, timings)
         return graph
 
     def _level(self, imap: InstanceMap) -> Levelling:
@@ -150,7 +150,7 @@ class AgentCore:
         drift = np.degrees(np.arccos(np.clip(float(new.up @ self.level.up), -1.0, 1.0)))
         return self.level if self.ready and drift < self.cfg.relevel_deg else new
 
-    def set_graph(self, graph: SceneGraph, map_sequence: int, stamp: float,
+    def set_graph(self, graph: SceneGraph, map_sequence: int, stamp_ns: int,
                   timings: dict | None = None) -> None:
         """Encode a graph and make it the agent's current one."""
         timings = {} if timings is None else timings
@@ -158,7 +158,7 @@ class AgentCore:
         self.digest = graph_digest(self.features.node_ids, self.features.centers)
         self.graph = graph
         self.level = graph.level if graph.level is not None else Levelling()
-        self.map_sequence, self.stamp, self.timing_ms = map_sequence, stamp, timings
+        self.map_sequence, self.stamp_ns, self.timing_ms = map_sequence, int(stamp_ns), timings
 
     def coarse_due(self, now: float) -> bool:
         """Whether a coarse graph should go out at this tick of the node's rate: the graph
@@ -179,7 +179,7 @@ class AgentCore:
         f = self.features
         return GraphMessage(agent_id=self.cfg.name, sequence=sequence,
                             map_sequence=self.map_sequence, weights_id=self.weights_id,
-                            stamp=self.stamp,
+                            stamp_ns=self.stamp_ns,
                             nodes=NodeFeatures(node_ids=f.node_ids, centers=f.centers,
                                                descriptor=f.descriptor),
                             extents=np.asarray(self.graph.extents, np.float32), level=self.level.R)

@@ -65,7 +65,8 @@ class MergeConfig:
     cycle_m / cycle_deg: measurements that close a cycle (or agree with the accepted path)
         within this translation / rotation are consistent. A cycle composes several links, so
         this is wider than one link's agreement.
-    max_link_age_s: a link not re-verified for this long is left out (0: links never age).
+    max_link_age_s: a link whose newer map is older than this is left out (0: links never age);
+        the maps' stamps against the time update() is given (the node's ROS time).
     average_iters: fixed-point iterations of the pose averaging."""
 
     merged_frame: str = param("sgreg_merged", "the shared frame every attached agent map is placed in")
@@ -73,7 +74,7 @@ class MergeConfig:
                            0.01, 10.0)
     cycle_deg: float = param(5.0, "links closing a cycle within this rotation (deg) are consistent",
                              0.1, 90.0)
-    max_link_age_s: float = param(0.0, "leave out links not re-verified for this long (0: never)",
+    max_link_age_s: float = param(0.0, "leave out links from maps older than this (0: never)",
                                   0.0, 86400.0)
     average_iters: int = 30
 
@@ -107,7 +108,7 @@ class Link:
     dst: str
     T: np.ndarray = field(compare=False, hash=False)
     confidence: float = 1.0
-    stamp: float = 0.0
+    stamp_ns: int = 0        # of the newer map it was estimated from
 
     @property
     def key(self) -> tuple[str, str]:
@@ -326,18 +327,18 @@ class Links:
         self.agents: set[str] = set()
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
-             link_state: str, confidence: float, stamp: float) -> None:
+             link_state: str, confidence: float, stamp_ns: int) -> None:
         self.agents |= {agent, peer}
         if verified or reason == "disputed_by_cycles":
             self._links[(agent, peer)] = Link(agent, peer, np.asarray(T, np.float64), float(confidence),
-                                              float(stamp))
+                                              int(stamp_ns))
         elif link_state != "confirmed":
             self._links.pop((agent, peer), None)
 
-    def current(self, now: float | None = None, max_age_s: float = 0.0) -> list[Link]:
+    def current(self, now_ns: int | None = None, max_age_s: float = 0.0) -> list[Link]:
         links = list(self._links.values())
-        if max_age_s > 0 and now is not None:
-            links = [l for l in links if now - l.stamp <= max_age_s]
+        if max_age_s > 0 and now_ns is not None:
+            links = [l for l in links if (now_ns - l.stamp_ns) * 1e-9 <= max_age_s]
         return links
 
 
@@ -368,10 +369,10 @@ class Merger:
         return T
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
-             link_state: str, confidence: float, stamp: float) -> None:
+             link_state: str, confidence: float, stamp_ns: int) -> None:
         # as float32, what the other agents' mergers get over the wire: the same order for all
         confidence = float(np.float32(confidence))
-        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp)
+        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp_ns)
 
     def _levelled(self, link: Link) -> Link:
         """The link between the two agents' levelled frames, with the current levellings."""
@@ -388,10 +389,10 @@ class Merger:
             return None
         return invert_transform(poses[peer]) @ poses[self.agent]
 
-    def update(self, now: float | None = None) -> list[str]:
+    def update(self, now_ns: int | None = None) -> list[str]:
         """Merge the current links; returns what changed since the last merge, one line each."""
         old = self.result
-        links = [self._levelled(l) for l in self.links.current(now, self.cfg.max_link_age_s)]
+        links = [self._levelled(l) for l in self.links.current(now_ns, self.cfg.max_link_age_s)]
         self.result = merge(links, sorted({a for l in links for a in l.key} | {self.agent}), self.cfg)
         news = []
         for a in sorted(set(self.result.attached) - set(old.attached)):

@@ -43,7 +43,7 @@ class GraphMessage:
     sequence: int
     map_sequence: int
     weights_id: str
-    stamp: float
+    stamp_ns: int
     nodes: NodeFeatures
     extents: np.ndarray
     points: np.ndarray | None = None
@@ -87,7 +87,7 @@ class Estimate:
     link:            the peer link's state after this estimate ("none", "candidate", "confirmed").
     peer_coarse_sequence / peer_dense_sequence: the peer's messages it was made from.
     timing_ms:       milliseconds per stage, "total" from message in to estimate out.
-    stamp:           the time of the newer of the two maps it was made from (their stamps)."""
+    stamp_ns:        the time of the newer of the two maps it was made from (their stamps, ns)."""
 
     peer_id: str
     T: np.ndarray
@@ -98,7 +98,7 @@ class Estimate:
     peer_coarse_sequence: int
     peer_dense_sequence: int
     timing_ms: dict
-    stamp: float = 0.0
+    stamp_ns: int = 0
 
     @property
     def mode(self) -> str:

@@ -371,11 +371,11 @@ class Peers:
         self.expected = merger.expected
 
     # ---- inputs --------------------------------------------------------------------------
-    def take_own_map(self, imap, map_sequence: int, stamp: float) -> str | None:
+    def take_own_map(self, imap, map_sequence: int, stamp_ns: int) -> str | None:
         """The agent's own new instance map (AgentCore.take_map), and its reference cloud
         (voxels, KD-tree, normals, footprint) built now, once per map update, so that no
         estimate waits for it. None when taken, else the one-line reason it was refused."""
-        why = self.agent.take_map(imap, map_sequence, stamp)
+        why = self.agent.take_map(imap, map_sequence, stamp_ns)
         if why is None:
             self.agent.reference_cloud(self.cfg.pipeline.pose)
         return why
@@ -490,12 +490,17 @@ class Peers:
             request = self._send_wanted(link, now)    # the estimate made a coarse candidate
         return est, request
 
-    def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
-        if msg.agent_id == self.agent.cfg.name:
-            return None
-        if msg.requester and msg.requester != self.agent.cfg.name:
-            # the peer's answer to another agent: every agent listening to the peer hears it
+    def answers_me(self, requester: str) -> bool:
+        """Whether a dense graph answering `requester` is for this agent; a peer's answer to
+        another agent reaches every agent that listens to the peer, and is counted, not refused
+        (the node asks before it decodes the points or checks the signature)."""
+        if requester and requester != self.agent.cfg.name:
             self._count("dense_for_others")
+            return False
+        return True
+
+    def on_dense(self, msg: GraphMessage, now: float) -> Estimate | None:
+        if msg.agent_id == self.agent.cfg.name or not self.answers_me(msg.requester):
             return None
         if msg.agent_id not in self.links or msg.request_sequence not in self.links[msg.agent_id].asked:
             self.agent.refuse("unrequested_dense", "")
@@ -769,7 +774,7 @@ class Peers:
         if reason != "ok":
             self._count(reason)
         est = Estimate(peer_id=link.peer_id, T=T, verified=reason == "ok", reason=reason,
-                       link=link.state, registration=reg, stamp=max(self.agent.stamp, peer_msg.stamp),
+                       link=link.state, registration=reg, stamp_ns=max(self.agent.stamp_ns, peer_msg.stamp_ns),
                        peer_coarse_sequence=link.coarse.sequence if link.coarse else 0,
                        peer_dense_sequence=dense.sequence if dense is not None else
                        (link.dense.sequence if link.dense else 0), timing_ms=timings)

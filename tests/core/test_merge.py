@@ -8,6 +8,8 @@ import pytest
 from sgreg_core.geometry import invert_transform
 from sgreg_core.runtime.merge import Link, Links, MergeConfig, from_4dof, merge, to_4dof
 
+S = 1_000_000_000   # ns per second
+
 # each agent's map frame in the world: T_world<-agent
 WORLD = {"a": from_4dof(0.3, (1.0, 2.0, 0.0)), "b": from_4dof(-1.2, (-4.0, 0.5, 0.1)),
          "c": from_4dof(2.5, (3.0, -6.0, 0.0)), "d": from_4dof(0.9, (8.0, 8.0, -0.1)),
@@ -96,18 +98,18 @@ def test_agents_no_link_reaches_are_not_attached():
 def test_links_follow_what_each_agent_says():
     links = Links()
     T = true_link("a", "b").T
-    links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp=1.0)
-    links.take("a", "b", np.eye(4), verified=False, reason="verification_failed", link_state="confirmed", confidence=0.2, stamp=2.0)
+    links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=1 * S)
+    links.take("a", "b", np.eye(4), verified=False, reason="verification_failed", link_state="confirmed", confidence=0.2, stamp_ns=2 * S)
     assert len(links.current()) == 1 and np.allclose(links.current()[0].T, T)   # a failed estimate keeps it
-    links.take("a", "b", np.eye(4), verified=False, reason="contradicted", link_state="candidate", confidence=0.9, stamp=3.0)
+    links.take("a", "b", np.eye(4), verified=False, reason="contradicted", link_state="candidate", confidence=0.9, stamp_ns=3 * S)
     assert links.current() == []                                                # withdrawn
-    links.take("b", "a", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp=4.0)
-    assert links.current(now=100.0, max_age_s=10.0) == [] and len(links.current(now=10.0, max_age_s=10.0)) == 1
+    links.take("b", "a", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=4 * S)
+    assert links.current(now_ns=100 * S, max_age_s=10.0) == [] and len(links.current(now_ns=10 * S, max_age_s=10.0)) == 1
     assert links.agents == {"a", "b"}
     # withheld only because the cycles dispute it: still the link's pose, for the cycles to re-judge
     T2 = true_link("b", "a", noise=1.0, rng=np.random.default_rng(0)).T
     links.take("b", "a", T2, verified=False, reason="disputed_by_cycles", link_state="confirmed",
-               confidence=0.9, stamp=5.0)
+               confidence=0.9, stamp_ns=5 * S)
     assert np.allclose(links.current()[0].T, T2)
 
 
@@ -120,12 +122,12 @@ def test_the_merger_names_disputed_and_settled_peers():
         l = true_link(s, d, noise=0.3, rng=rng)
         if (s, d) == ("a", "c"):        # a's own link to c is wrong
             l = Link("a", "c", from_4dof(0.0, (4.0, 0.0, 0.0)) @ l.T)
-        m.take(l.src, l.dst, l.T, True, "ok", "confirmed", 0.9, 1.0)
-    news = m.update(2.0)
+        m.take(l.src, l.dst, l.T, True, "ok", "confirmed", 0.9, 1 * S)
+    news = m.update(2 * S)
     assert any("link a -> c rejected" in line for line in news)
     assert any("c/map attached" in line for line in news)
     assert m.disputed_peers() == {"c"} and m.settled_peers() == {"b"}
-    assert m.update(3.0) == []             # nothing new the second time
+    assert m.update(3 * S) == []             # nothing new the second time
 
 
 def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_nothing():
@@ -133,16 +135,16 @@ def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_no
 
     m = Merger(MergeConfig(), "a")
     right, wrong = true_link("a", "b"), Link("b", "a", from_4dof(0.5, (3.0, 0.0, 0.0)) @ true_link("b", "a").T)
-    m.take("a", "b", right.T, True, "ok", "confirmed", 0.90, 1.0)
-    m.take("b", "a", wrong.T, True, "ok", "confirmed", 0.99, 1.0)
-    m.update(2.0)
+    m.take("a", "b", right.T, True, "ok", "confirmed", 0.90, 1 * S)
+    m.take("b", "a", wrong.T, True, "ok", "confirmed", 0.99, 1 * S)
+    m.update(2 * S)
     assert m.result.attached in (["a"], ["b"]) and not m.result.accepted
     assert {l.key for l, _ in m.result.rejected} == {("a", "b"), ("b", "a")}
     assert m.disputed_peers() == set()            # each link's own rules judge it
     # a third agent decides: its links agree with a -> b, so b -> a is the wrong one
     for s_, d in (("c", "a"), ("c", "b")):
-        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 3.0)
-    m.update(4.0)
+        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 3 * S)
+    m.update(4 * S)
     assert [l.key for l, _ in m.result.rejected] == [("b", "a")] and ("b", "a") in m.result.disputed
     assert m.result.attached == ["a", "b", "c"] and m.disputed_peers() == set()
 
@@ -164,15 +166,15 @@ def test_links_between_tilted_maps_are_merged_upright():
     for x in "abc":
         m.set_level(x, lean[x])
     for s_, d in itertools.permutations("abc", 2):
-        m.take(s_, d, np.linalg.inv(raw[d]) @ raw[s_], True, "ok", "confirmed", 0.9, 1.0)
-    m.update(2.0)
+        m.take(s_, d, np.linalg.inv(raw[d]) @ raw[s_], True, "ok", "confirmed", 0.9, 1 * S)
+    m.update(2 * S)
     assert not m.result.rejected and m.result.attached == ["a", "b", "c"]
     for x, T in m.raw_poses().items():       # T_merged<-map, the merged frame a's levelled frame
         truth = np.linalg.inv(WORLD["a"]) @ raw[x]
         assert np.allclose(T, truth, atol=1e-6), x
     # b levels its map anew (as upright, turned 30 deg): links taken before stay right
     m.set_level("b", Rotation.from_euler("z", 30, degrees=True).as_matrix() @ lean["b"])
-    m.update(3.0)
+    m.update(3 * S)
     for x, T in m.raw_poses().items():
         assert np.allclose(T, np.linalg.inv(WORLD["a"]) @ raw[x], atol=1e-6), x
 
@@ -221,10 +223,10 @@ def test_peers_placed_through_a_triangle_are_placed_by_others():
     from sgreg_core.runtime.merge import Merger
 
     m = Merger(MergeConfig(), "a")
-    m.take("b", "c", true_link("b", "c").T, True, "ok", "confirmed", 0.9, 1.0)
-    m.take("a", "b", true_link("a", "b").T, True, "ok", "confirmed", 0.9, 1.0)
-    m.update(2.0)
+    m.take("b", "c", true_link("b", "c").T, True, "ok", "confirmed", 0.9, 1 * S)
+    m.take("a", "b", true_link("a", "b").T, True, "ok", "confirmed", 0.9, 1 * S)
+    m.update(2 * S)
     assert m.settled_peers() == {"b", "c"} and m.placed_by_others() == set()   # a chain: bridges
-    m.take("a", "c", true_link("a", "c").T, True, "ok", "confirmed", 0.9, 3.0)
-    m.update(4.0)
+    m.take("a", "c", true_link("a", "c").T, True, "ok", "confirmed", 0.9, 3 * S)
+    m.update(4 * S)
     assert m.placed_by_others() == {"b", "c"}

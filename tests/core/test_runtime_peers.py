@@ -782,7 +782,7 @@ def test_own_map_change_is_estimated_against_a_quiet_peer(model, graphs):
     a.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(3)), 2, 3.0)
     [(est, _)] = reg.on_own_map(now=3.5)
     assert est.peer_id == "b" and est.mode == "coarse"
-    assert est.stamp == max(a.stamp, b.stamp)
+    assert est.stamp_ns == max(a.stamp_ns, b.stamp_ns)
 
 
 def test_coarse_graphs_drop_to_a_heartbeat_when_nothing_changes(model, graphs):

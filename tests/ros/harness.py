@@ -45,6 +45,7 @@ class Watcher:
         self.results: list[RegistrationResult] = []
         self.diagnostics: dict[str, dict] = {}     # node name -> its counters
         self.levels: dict[str, list] = {}          # node name -> levels seen, in order
+        self.map_stamps: set[int] = set()           # ns stamps of every map published
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos.DIAGNOSTICS)
         self.map_pubs = {}
         for n in names:
@@ -82,7 +83,9 @@ class Watcher:
             if publish_maps and time.monotonic() >= next_pub:
                 for name, m in publish_maps.items():
                     seq[name] = seq.get(name, 0) + 1
-                    self.map_pubs[name].publish(instance_map_to_msg(m, name, seq[name], time.time()))
+                    stamp_ns = time.time_ns()
+                    self.map_stamps.add(stamp_ns)
+                    self.map_pubs[name].publish(instance_map_to_msg(m, name, seq[name], stamp_ns))
                 next_pub = time.monotonic() + period
             if each is not None:
                 each()

@@ -206,7 +206,7 @@ def test_links_to_made_up_agents_are_left_out_of_the_merge(fleet):
         msg = RegistrationResult(agent_id="b", peer_id=f"ghost{k}", sequence=10_000 + k,
                                  verified=True, mode="dense", reason="ok", link="confirmed",
                                  confidence=0.99)
-        msg.header.stamp = convert.sec_to_stamp(w.node.get_clock().now().nanoseconds * 1e-9)
+        msg.header.stamp = convert.ns_to_stamp(w.node.get_clock().now().nanoseconds)
         msg.transform.transform.rotation.w = 1.0
         pub.publish(as_b.sign(msg, "/b/sgreg/registration"))
         w.spin_until(lambda: False, 0.02)

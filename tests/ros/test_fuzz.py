@@ -98,8 +98,8 @@ def test_decoders_and_cores_never_throw_on_mutated_messages(cores):
                 b.answer_request(value, now=float(core_runs))
             elif cls is RegistrationResult:
                 merger.take(value.agent, value.peer, value.T, value.verified, value.reason, value.link,
-                            value.confidence, value.stamp)
-                merger.update(float(core_runs))
+                            value.confidence, value.stamp_ns)
+                merger.update(core_runs)
             else:
                 a.take_map(value, 100 + core_runs, 0.0)
     assert refused > MUTANTS // 4            # the mutations do break messages ...
@@ -142,3 +142,11 @@ def test_nodes_survive_a_stream_of_mutated_messages(cores, tmp_path):
         processes.stop(procs)
         w.close()
         rclpy.try_shutdown()
+
+
+@pytest.mark.parametrize("ns", [0, 1_700_000_000_123_456_789, 1_700_000_000_999_999_999, 2**62 + 7])
+def test_stamps_pass_through_to_the_nanosecond(ns):
+    """Map stamp -> graph -> estimate -> result: integer ns all the way (float seconds of
+    today's epoch resolve 240 ns, and rounding up to a whole second lost a second)."""
+    assert convert.stamp_to_ns(convert.ns_to_stamp(ns)) == ns
+    assert convert.ns_to_stamp(ns).nanosec < 1_000_000_000

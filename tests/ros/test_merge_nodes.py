@@ -31,7 +31,7 @@ def result(agent: str, peer: str, T: np.ndarray, seq: int) -> RegistrationResult
     r.agent_id, r.peer_id, r.sequence = agent, peer, seq
     r.header.frame_id = f"{peer}/map"
     r.header.stamp.sec = int(time.time())
-    r.transform = transform_msg(T, agent, peer, time.time())
+    r.transform = transform_msg(T, agent, peer, time.time_ns())
     r.verified, r.reason, r.link, r.mode = True, "ok", "confirmed", "dense"
     r.confidence = 0.99
     return r

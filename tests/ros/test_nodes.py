@@ -9,13 +9,13 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from sgreg_msgs.msg import CoarseGraph, DenseRequest, InstanceMap
+from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap
 
 from sgreg_core.metrics import two_agent_success
 from sgreg_core.bench.replay_score import ground_truth
 from sgreg_core.types import InstanceMap as CoreMap
 from sgreg_ros import qos
-from sgreg_ros.convert import instance_map_to_msg
+from sgreg_ros.convert import instance_map_to_msg, stamp_to_ns
 
 from .harness import FAST, Watcher, agent_maps, alive, processes, verified_pairs_ok
 
@@ -53,6 +53,8 @@ def test_two_agents_reach_a_verified_transform(two):
     for (agent, peer), Ts in w.transforms.items():
         gt = ground_truth(frames, agent, peer)
         assert all(two_agent_success(T, gt) for T in Ts), (agent, peer)
+    # every result carries the stamp of a map it was made from, to the nanosecond
+    assert {stamp_to_ns(r.header.stamp) for r in w.results} <= w.map_stamps
     assert not alive(procs)
 
 
@@ -62,6 +64,7 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     pub_map = w.publisher(InstanceMap, "/a/mapping/instances", qos.INSTANCES)
     pub_x = w.publisher(CoarseGraph, "/x/sgreg/coarse", qos.COARSE)
     pub_req = w.publisher(DenseRequest, "/a/sgreg/dense_request", qos.DENSE_REQUEST)
+    pub_x_dense = w.publisher(DenseGraph, "/x/sgreg/dense", qos.DENSE)
     good = coarse_b[-1]
 
     empty = CoreMap(points=np.zeros((0, 3), np.float32), instance=np.zeros(0, np.int32), labels={})
@@ -87,7 +90,7 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     big.feature_encoding = CoarseGraph.FEATURE_FLOAT16
     big.features = bytes(2 * n * good.feature_dim)
     # (publisher, message): one at a time, since the topics keep only the newest message
-    bad = [(pub_map, instance_map_to_msg(m, "a", 10_000 + i, time.time())) for i, m in enumerate((empty, nan, tiny))]
+    bad = [(pub_map, instance_map_to_msg(m, "a", 10_000 + i, time.time_ns())) for i, m in enumerate((empty, nan, tiny))]
     bad += [(pub_map, b"\x00\x01garbage"),                              # undecodable
             (pub_x, b"\x00\x01\x00\x00garbage"),
             (pub_x, fake_coarse(50, weights_id="deadbeef0000")),       # other weights
@@ -97,7 +100,9 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
             (pub_x, fake_coarse(52)),                                  # duplicate
             (pub_x, fake_coarse(40)),                                  # out of order
             (pub_x, big),                                              # oversized
-            (pub_req, DenseRequest(from_agent="b", to_agent="c", sequence=1, weights_id=good.weights_id))]
+            (pub_req, DenseRequest(from_agent="b", to_agent="c", sequence=1, weights_id=good.weights_id)),
+            (pub_x_dense, DenseGraph(agent_id="x", sequence=1, requester="c", request_sequence=1,
+                                     graph=fake_coarse(53)))]   # x's answer to c: a's to skip, points unread
 
     def inject():
         for pub, msg in bad:
@@ -113,9 +118,11 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
               (reg_a, "malformed_message", 1), (reg_a, "rejected_weights", 1),
               (reg_a, "bad_feature_size", 1), (reg_a, "duplicate_sequence", 1),
               (reg_a, "out_of_order_sequence", 1), (reg_a, "oversized_message", 1),
-              (agent_a, "request_not_for_me", 1)]
+              (agent_a, "request_not_for_me", 1), (reg_a, "dense_for_others", 1)]
     ok = w.spin_until(lambda: all(w.counter(s, k) >= n for s, k, n in wanted), 30)
     assert ok, {f"{s}:{k}": w.counter(s, k) for s, k, n in wanted if w.counter(s, k) < n}
+    # the garbage map and the garbage coarse graph; not the answer to c: it was not decoded
+    assert w.counter(reg_a, "malformed_message") == 2
     assert not alive(procs)
     # and registration goes on: a fresh verified transform arrives after the bad input
     before = len(w.transforms.get(("a", "b"), []))
