@@ -91,7 +91,7 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
 
 def take_instance_map(raw: bytes, take, refuse) -> str | None:
     """The one map intake of both nodes: decode an InstanceMap and hand it to
-    take(imap, sequence, stamp) (AgentCore.take_map or Peers.take_own_map). Returns None, or
+    take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None, or
     the one-line reason the map was refused, counted through refuse(counter, why): bytes that
     do not decode are "malformed_message", fields that do not fit "bad_instance_map"."""
     try:

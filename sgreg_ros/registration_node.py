@@ -225,7 +225,7 @@ class RegistrationNode(SgregNode):
 
     def _merge(self) -> None:
         """Merge every agent's links; /tf gets the attached agents' maps in the merged frame."""
-        for line in self.merger.update(self.now_ns()):
+        for line in self.merger.update():
             self.get_logger().info(line)
         self.peers.follow(self.merger)
         result = self.merger.result
@@ -259,8 +259,8 @@ class RegistrationNode(SgregNode):
             return None
         try:
             msg = convert.decode(raw, cls)
-            if wanted is not None and not wanted(msg):
-                return None
+            if wanted is not None and msg.agent_id == peer and not wanted(msg):
+                return None   # (one that claims another agent is refused below, as ever)
             out = fn(msg)
         except convert.ConversionError as exc:
             self.refusal(self.agent.refuse("malformed_message", f"malformed {what} refused: {exc}"),

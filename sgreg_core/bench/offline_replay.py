@@ -121,7 +121,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                     _deliver(req, agents, peers_of, name, encoding, now, record)
             continue
         heapq.heappush(events, (now + cfg.coarse_period_s, 1, 0, name, None))
-        for line in mergers[name].update(_ns(now)):
+        for line in mergers[name].update():
             log(f"{name}: {line}")
         peers_of[name].follow(mergers[name])
         for req in peers_of[name].on_tick(now):
@@ -138,7 +138,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                 _deliver(req, agents, peers_of, peer, encoding, now, record)
     if merges is not None:
         for name, m in mergers.items():
-            m.update(_ns(end))
+            m.update()
             merges[name] = m.result
     if counters is not None:
         for name in names:

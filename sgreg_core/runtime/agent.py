@@ -19,6 +19,7 @@ from ..pose import PoseConfig, ReferenceCloud
 from ..maps.level import LevelConfig, Levelling, level_map
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
+from .clock import stamp_ns as _stamp_ns
 from .messages import DenseRequestMessage, GraphMessage, graph_digest
 
 ANSWER_SLACK = 0.1   # share of dense_min_interval_s a request may come early and be answered
@@ -153,12 +154,13 @@ class AgentCore:
     def set_graph(self, graph: SceneGraph, map_sequence: int, stamp_ns: int,
                   timings: dict | None = None) -> None:
         """Encode a graph and make it the agent's current one."""
+        stamp_ns = _stamp_ns(stamp_ns)
         timings = {} if timings is None else timings
         self.features = self.model.encode(graph, dense=True, timings=timings)
         self.digest = graph_digest(self.features.node_ids, self.features.centers)
         self.graph = graph
         self.level = graph.level if graph.level is not None else Levelling()
-        self.map_sequence, self.stamp_ns, self.timing_ms = map_sequence, int(stamp_ns), timings
+        self.map_sequence, self.stamp_ns, self.timing_ms = map_sequence, stamp_ns, timings
 
     def coarse_due(self, now: float) -> bool:
         """Whether a coarse graph should go out at this tick of the node's rate: the graph

@@ -57,6 +57,7 @@ import numpy as np
 
 from ..config import param
 from ..geometry import invert_transform
+from .clock import stamp_ns as _stamp_ns
 
 
 @dataclass
@@ -65,8 +66,10 @@ class MergeConfig:
     cycle_m / cycle_deg: measurements that close a cycle (or agree with the accepted path)
         within this translation / rotation are consistent. A cycle composes several links, so
         this is wider than one link's agreement.
-    max_link_age_s: a link whose newer map is older than this is left out (0: links never age);
-        the maps' stamps against the time update() is given (the node's ROS time).
+    max_link_age_s: a link made from maps this much older than the newest map any result
+        names is left out (0: links never age). Measured on the maps' stamps, not a node's
+        clock: every agent's merger hears the same results and keeps the same links, and a
+        replayed bag ages its links as it did live.
     average_iters: fixed-point iterations of the pose averaging."""
 
     merged_frame: str = param("sgreg_merged", "the shared frame every attached agent map is placed in")
@@ -74,7 +77,7 @@ class MergeConfig:
                            0.01, 10.0)
     cycle_deg: float = param(5.0, "links closing a cycle within this rotation (deg) are consistent",
                              0.1, 90.0)
-    max_link_age_s: float = param(0.0, "leave out links from maps older than this (0: never)",
+    max_link_age_s: float = param(0.0, "leave out links from maps this much older than the newest (s; 0: never)",
                                   0.0, 86400.0)
     average_iters: int = 30
 
@@ -325,20 +328,29 @@ class Links:
     def __init__(self):
         self._links: dict[tuple[str, str], Link] = {}
         self.agents: set[str] = set()
+        # the map stamp of each directed pair's last result, verified or not: the newest of them
+        # is what links age against (the last, not the largest ever, so that one stamp far ahead
+        # or a bag played again ages links only until that pair's next result)
+        self._heard_ns: dict[tuple[str, str], int] = {}
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
              link_state: str, confidence: float, stamp_ns: int) -> None:
         self.agents |= {agent, peer}
+        stamp_ns = _stamp_ns(stamp_ns)
+        self._heard_ns[(agent, peer)] = stamp_ns
         if verified or reason == "disputed_by_cycles":
             self._links[(agent, peer)] = Link(agent, peer, np.asarray(T, np.float64), float(confidence),
-                                              int(stamp_ns))
+                                              stamp_ns)
         elif link_state != "confirmed":
             self._links.pop((agent, peer), None)
 
-    def current(self, now_ns: int | None = None, max_age_s: float = 0.0) -> list[Link]:
+    def current(self, max_age_s: float = 0.0) -> list[Link]:
+        """The links, without those made from maps more than max_age_s older than the newest
+        map of any result (0: all)."""
         links = list(self._links.values())
-        if max_age_s > 0 and now_ns is not None:
-            links = [l for l in links if (now_ns - l.stamp_ns) * 1e-9 <= max_age_s]
+        if max_age_s > 0 and self._heard_ns:
+            newest = max(self._heard_ns.values())
+            links = [l for l in links if (newest - l.stamp_ns) * 1e-9 <= max_age_s]
         return links
 
 
@@ -389,10 +401,10 @@ class Merger:
             return None
         return invert_transform(poses[peer]) @ poses[self.agent]
 
-    def update(self, now_ns: int | None = None) -> list[str]:
+    def update(self) -> list[str]:
         """Merge the current links; returns what changed since the last merge, one line each."""
         old = self.result
-        links = [self._levelled(l) for l in self.links.current(now_ns, self.cfg.max_link_age_s)]
+        links = [self._levelled(l) for l in self.links.current(self.cfg.max_link_age_s)]
         self.result = merge(links, sorted({a for l in links for a in l.key} | {self.agent}), self.cfg)
         news = []
         for a in sorted(set(self.result.attached) - set(old.attached)):

@@ -104,13 +104,37 @@ def test_links_follow_what_each_agent_says():
     links.take("a", "b", np.eye(4), verified=False, reason="contradicted", link_state="candidate", confidence=0.9, stamp_ns=3 * S)
     assert links.current() == []                                                # withdrawn
     links.take("b", "a", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=4 * S)
-    assert links.current(now_ns=100 * S, max_age_s=10.0) == [] and len(links.current(now_ns=10 * S, max_age_s=10.0)) == 1
     assert links.agents == {"a", "b"}
     # withheld only because the cycles dispute it: still the link's pose, for the cycles to re-judge
     T2 = true_link("b", "a", noise=1.0, rng=np.random.default_rng(0)).T
     links.take("b", "a", T2, verified=False, reason="disputed_by_cycles", link_state="confirmed",
                confidence=0.9, stamp_ns=5 * S)
     assert np.allclose(links.current()[0].T, T2)
+
+
+def test_links_age_by_the_maps_not_by_a_clock():
+    """max_link_age_s: a link made from maps much older than the newest map any result names
+    is left out; a failed estimate's newer maps count (its maps moved on without the link)."""
+    links = Links()
+    T = true_link("a", "b").T
+    links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=100 * S)
+    links.take("b", "c", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=105 * S)
+    assert len(links.current(max_age_s=10.0)) == 2
+    links.take("b", "c", T, verified=False, reason="too_few_inliers", link_state="confirmed",
+               confidence=0.1, stamp_ns=111 * S)
+    assert [l.key for l in links.current(max_age_s=10.0)] == [("b", "c")]   # a -> b's maps are 11 s old
+    assert len(links.current()) == 2                                         # 0: links never age
+    links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=112 * S)
+    assert len(links.current(max_age_s=10.0)) == 2                           # re-verified
+    # a stamp far ahead (a wrong clock) ages the others only until that pair's next result
+    links.take("c", "a", T, verified=False, reason="too_few_inliers", link_state="none", confidence=0.0,
+               stamp_ns=10_000 * S)
+    assert links.current(max_age_s=10.0) == []
+    links.take("c", "a", T, verified=False, reason="too_few_inliers", link_state="none", confidence=0.0,
+               stamp_ns=113 * S)
+    assert len(links.current(max_age_s=10.0)) == 2
+    with pytest.raises(TypeError):                                            # seconds are refused
+        links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=114.0)
 
 
 def test_the_merger_names_disputed_and_settled_peers():
@@ -123,11 +147,11 @@ def test_the_merger_names_disputed_and_settled_peers():
         if (s, d) == ("a", "c"):        # a's own link to c is wrong
             l = Link("a", "c", from_4dof(0.0, (4.0, 0.0, 0.0)) @ l.T)
         m.take(l.src, l.dst, l.T, True, "ok", "confirmed", 0.9, 1 * S)
-    news = m.update(2 * S)
+    news = m.update()
     assert any("link a -> c rejected" in line for line in news)
     assert any("c/map attached" in line for line in news)
     assert m.disputed_peers() == {"c"} and m.settled_peers() == {"b"}
-    assert m.update(3 * S) == []             # nothing new the second time
+    assert m.update() == []             # nothing new the second time
 
 
 def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_nothing():
@@ -137,14 +161,14 @@ def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_no
     right, wrong = true_link("a", "b"), Link("b", "a", from_4dof(0.5, (3.0, 0.0, 0.0)) @ true_link("b", "a").T)
     m.take("a", "b", right.T, True, "ok", "confirmed", 0.90, 1 * S)
     m.take("b", "a", wrong.T, True, "ok", "confirmed", 0.99, 1 * S)
-    m.update(2 * S)
+    m.update()
     assert m.result.attached in (["a"], ["b"]) and not m.result.accepted
     assert {l.key for l, _ in m.result.rejected} == {("a", "b"), ("b", "a")}
     assert m.disputed_peers() == set()            # each link's own rules judge it
     # a third agent decides: its links agree with a -> b, so b -> a is the wrong one
     for s_, d in (("c", "a"), ("c", "b")):
         m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 3 * S)
-    m.update(4 * S)
+    m.update()
     assert [l.key for l, _ in m.result.rejected] == [("b", "a")] and ("b", "a") in m.result.disputed
     assert m.result.attached == ["a", "b", "c"] and m.disputed_peers() == set()
 
@@ -167,14 +191,14 @@ def test_links_between_tilted_maps_are_merged_upright():
         m.set_level(x, lean[x])
     for s_, d in itertools.permutations("abc", 2):
         m.take(s_, d, np.linalg.inv(raw[d]) @ raw[s_], True, "ok", "confirmed", 0.9, 1 * S)
-    m.update(2 * S)
+    m.update()
     assert not m.result.rejected and m.result.attached == ["a", "b", "c"]
     for x, T in m.raw_poses().items():       # T_merged<-map, the merged frame a's levelled frame
         truth = np.linalg.inv(WORLD["a"]) @ raw[x]
         assert np.allclose(T, truth, atol=1e-6), x
     # b levels its map anew (as upright, turned 30 deg): links taken before stay right
     m.set_level("b", Rotation.from_euler("z", 30, degrees=True).as_matrix() @ lean["b"])
-    m.update(3 * S)
+    m.update()
     for x, T in m.raw_poses().items():
         assert np.allclose(T, np.linalg.inv(WORLD["a"]) @ raw[x], atol=1e-6), x
 
@@ -225,8 +249,8 @@ def test_peers_placed_through_a_triangle_are_placed_by_others():
     m = Merger(MergeConfig(), "a")
     m.take("b", "c", true_link("b", "c").T, True, "ok", "confirmed", 0.9, 1 * S)
     m.take("a", "b", true_link("a", "b").T, True, "ok", "confirmed", 0.9, 1 * S)
-    m.update(2 * S)
+    m.update()
     assert m.settled_peers() == {"b", "c"} and m.placed_by_others() == set()   # a chain: bridges
     m.take("a", "c", true_link("a", "c").T, True, "ok", "confirmed", 0.9, 3 * S)
-    m.update(4 * S)
+    m.update()
     assert m.placed_by_others() == {"b", "c"}

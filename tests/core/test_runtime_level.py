@@ -24,8 +24,8 @@ def test_tilted_agents_publish_the_transform_between_their_maps(model):
     A, B = tilt_rotation(1.7, 30.0), tilt_rotation(1.1, 160.0)       # each robot's gravity error
     a = AgentCore(AgentConfig(name="a"), model)
     b = AgentCore(AgentConfig(name="b"), model)
-    assert a.take_map(pair.src.transformed(A), 1, 0.0) is None
-    assert b.take_map(pair.ref.transformed(B), 1, 0.0) is None
+    assert a.take_map(pair.src.transformed(A), 1, 0) is None
+    assert b.take_map(pair.ref.transformed(B), 1, 0) is None
     assert abs(a.level.tilt_deg - 1.7) < 0.2 and abs(b.level.tilt_deg - 1.1) < 0.2
     msg = b.coarse_message(1)
     assert np.allclose(msg.level, b.level.R)
@@ -46,11 +46,11 @@ def test_a_growing_map_keeps_its_levelling(model):
     peers' kept correspondences); a real change does."""
     scene = generate_scene(6, SynthConfig(rooms=2)).transformed(tilt_rotation(1.5, 80.0))
     a = AgentCore(AgentConfig(name="a"), model)
-    a.take_map(scene, 1, 0.0)
+    a.take_map(scene, 1, 0)
     first = a.level
     keep = np.random.default_rng(0).random(len(scene.points)) < 0.9
-    a.take_map(InstanceMap(scene.points[keep], scene.instance[keep], scene.labels), 2, 1.0)
+    a.take_map(InstanceMap(scene.points[keep], scene.instance[keep], scene.labels), 2, 1_000_000_000)
     assert a.level is first
     # the map leans 2.5 deg more: re-levelled
-    a.take_map(scene.transformed(tilt_rotation(2.5, 0.0)), 3, 2.0)
+    a.take_map(scene.transformed(tilt_rotation(2.5, 0.0)), 3, 2_000_000_000)
     assert a.level is not first and abs(a.level.tilt_deg - first.tilt_deg) > 1.0

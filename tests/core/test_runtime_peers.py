@@ -32,9 +32,9 @@ def graphs():
 def make_agents(model, graphs, cfg=None):
     ga, gb = graphs
     a = AgentCore(AgentConfig(name="a"), model)
-    a.set_graph(ga, 1, 0.0)
+    a.set_graph(ga, 1, 0)
     b = AgentCore(AgentConfig(name="b"), model)
-    b.set_graph(gb, 1, 0.0)
+    b.set_graph(gb, 1, 0)
     logs = []
     reg = Peers(cfg or PeersConfig(), a, model, log=logs.append)
     return a, b, reg, logs
@@ -165,7 +165,7 @@ def test_the_coarse_estimate_beside_a_dense_one_confirms_it_or_nothing(model, gr
 def drift(agent, graphs, map_sequence, now, dx=0.02):
     """The agent's map (the peer's graph of `graphs`) with other content: shifted by dx."""
     moved = moved_graph(graphs[1], yaw_transform(0.0, (dx, 0.0, 0.0)), np.random.default_rng(map_sequence))
-    agent.set_graph(moved, map_sequence, now)
+    agent.set_graph(moved, map_sequence, int(now * 1e9))
 
 
 def resting_on(reg, objects):
@@ -235,7 +235,7 @@ def test_the_same_data_twice_does_not_confirm(model, graphs):
     for seq in (1, 2):   # two dense answers from the same maps
         est = reg.on_dense(b.dense_message(seq, req.node_ids, "a", req.sequence), now=seq)
         assert est.reason == "awaiting_confirmation", est.reason
-    b.set_graph(graphs[1], 2, 3.0)    # b's map sequence moves on, its content does not
+    b.set_graph(graphs[1], 2, 3_000_000_000)    # b's map sequence moves on, its content does not
     est = reg.on_dense(b.dense_message(3, req.node_ids, "a", req.sequence), now=3.0)
     assert est.reason == "awaiting_confirmation"
     # new content (b's map drifted by 2 cm): new evidence
@@ -491,7 +491,7 @@ def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
     W = yaw_transform(np.radians(60.0), (2.0, 1.0, 0.0))
     rng = np.random.default_rng(9)
     moved = moved_graph(graphs[1], W, rng, jitter=0.002)
-    b.set_graph(moved, 3, 2.0)
+    b.set_graph(moved, 3, 2_000_000_000)
     reg.on_coarse(b.coarse_message(3), now=2.0)
     req = reg.links["b"].pending         # a's outstanding request, answered from b's new map
     assert req is not None
@@ -533,7 +533,7 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
     # cloud they were verified on, no longer describe b's map
     jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
-    b.set_graph(jumped, 2, 1.5)
+    b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
     # the coarse estimate passes the verdict with no points to check it on: they are asked for
@@ -543,7 +543,7 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     # without prompt_request: new points are asked for after the search interval (2 s), not
     # the confirmed link's (5 s), and the same two graphs may be asked again
     a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(prompt_request=False))
-    b.set_graph(jumped, 2, 1.5)
+    b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
     assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
     assert reg.links["b"].dense_cloud is None and req is None    # asked 1.5 s ago
@@ -710,7 +710,7 @@ def test_own_reference_cloud_is_built_once_per_map(model, graphs):
     pose = reg.cfg.pipeline.pose
     first = a.reference_cloud(pose)
     assert first.valid and a.reference_cloud(pose) is first
-    a.set_graph(graphs[0], 2, 1.0)   # a new map: a new reference
+    a.set_graph(graphs[0], 2, 1_000_000_000)   # a new map: a new reference
     assert a.reference_cloud(pose) is not first
 
 
@@ -719,12 +719,12 @@ def test_one_map_intake_for_both_nodes_counts_every_refusal(model):
     agent = AgentCore(AgentConfig(name="a"), model)
     peers = Peers(PeersConfig(), agent, model, log=lambda s: None)
     assert peers.counters is agent.counters                  # one table per node
-    assert peers.take_own_map(scene, 1, 0.0) is None and agent.ready
+    assert peers.take_own_map(scene, 1, 0) is None and agent.ready
     reference = agent._reference                             # built with the map, not per estimate
     assert reference is not None and agent.reference_cloud(peers.cfg.pipeline.pose) is reference[1]
-    assert "twice" in peers.take_own_map(scene, 1, 1.0)
+    assert "twice" in peers.take_own_map(scene, 1, 1_000_000_000)
     empty = InstanceMap(points=np.zeros((0, 3), np.float32), instance=np.zeros(0, np.int32), labels={})
-    assert "refused" in agent.take_map(empty, 2, 2.0)
+    assert "refused" in agent.take_map(empty, 2, 2_000_000_000)
     assert agent.counters["duplicate_map"] == 1 and agent.counters["bad_instance_map"] == 1
     assert agent.map_sequence == 1                           # the refused map changed nothing
 
@@ -741,11 +741,11 @@ def test_no_dense_request_for_graphs_already_exchanged(model, graphs):
         assert reg.on_tick(float(k) + 0.5) == []
     assert reg.counters["requests"] == 1
     moved = moved_graph(graphs[1], yaw_transform(0.0, (0.03, 0.0, 0.0)), np.random.default_rng(2))
-    b.set_graph(moved, 2, 6.0)
+    b.set_graph(moved, 2, 6_000_000_000)
     _, req = reg.on_coarse(b.coarse_message(6), now=6.0)
     assert req is not None                                  # new content: asked at once
     reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=6.1)
-    b.set_graph(graphs[1], 3, 6.5)
+    b.set_graph(graphs[1], 3, 6_500_000_000)
     assert reg.on_coarse(b.coarse_message(7), now=6.5)[1] is None    # within the interval ...
     [held] = reg.on_tick(7.2)                                        # ... asked once it passed
     assert held.to_agent == "b" and reg.counters["requests"] == 3
@@ -779,7 +779,7 @@ def test_own_map_change_is_estimated_against_a_quiet_peer(model, graphs):
     reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_own_map(now=1.0) == []            # b's next graph is due anyway
     assert reg.on_own_map(now=3.0) == []            # quiet peer, but nothing new on either side
-    a.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(3)), 2, 3.0)
+    a.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.02, 0.0, 0.0)), np.random.default_rng(3)), 2, 3_000_000_000)
     [(est, _)] = reg.on_own_map(now=3.5)
     assert est.peer_id == "b" and est.mode == "coarse"
     assert est.stamp_ns == max(a.stamp_ns, b.stamp_ns)
@@ -788,10 +788,10 @@ def test_own_map_change_is_estimated_against_a_quiet_peer(model, graphs):
 def test_coarse_graphs_drop_to_a_heartbeat_when_nothing_changes(model, graphs):
     agent = AgentCore(AgentConfig(name="a", quiet_after_s=3.0, heartbeat_period_s=10.0), model)
     assert not agent.coarse_due(0.0)                 # no map yet
-    agent.set_graph(graphs[0], 1, 0.0)
+    agent.set_graph(graphs[0], 1, 0)
     sent = [t for t in np.arange(0.0, 30.0, 1.0) if agent.coarse_due(t) and agent.broadcast(t)]
     assert sent == [0.0, 1.0, 2.0, 12.0, 22.0]      # the rate for quiet_after_s, then heartbeats
-    agent.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.05, 0, 0)), np.random.default_rng(4)), 2, 30.0)
+    agent.set_graph(moved_graph(graphs[0], yaw_transform(0.0, (0.05, 0, 0)), np.random.default_rng(4)), 2, 30_000_000_000)
     assert agent.coarse_due(30.0) and agent.broadcast(30.0) and agent.coarse_due(31.0)
 
 

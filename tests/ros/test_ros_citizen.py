@@ -64,9 +64,9 @@ def test_nodes_are_named_as_run_and_report_on_diagnostics(agent_a):
     assert "no instance map" in w.levels["/a/agent"][-1][2]
     # a map: OK; then a map the nodes refuse: WARN for that period
     w.levels.clear()
-    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1.0))
+    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1))
     assert w.spin_until(lambda: w.levels.get("/a/agent", [(None,)])[-1][0] == OK, 15), w.levels
-    broken = instance_map_to_msg(imap, "a", 2, 2.0)
+    broken = instance_map_to_msg(imap, "a", 2, 2)
     broken.labels = broken.labels[:1]            # labels no longer match the instance ids
     w.levels.clear()
     w.map_pubs["a"].publish(broken)
@@ -79,7 +79,7 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     assert w.wait_ready(["a"]), f"dead: {alive(procs)}"
     coarse = []
     w.node.create_subscription(CoarseGraph, "/a/sgreg/coarse", coarse.append, qos.COARSE_SUB)
-    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1.0))
+    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1))
     assert w.spin_until(lambda: coarse, 20)
     # a static map: at the rate for quiet_after_s (3 s here), then only as a heartbeat (10 s) ...
     w.spin_until(lambda: False, 4.0)
