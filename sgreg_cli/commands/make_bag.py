@@ -126,6 +126,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from sgreg_ros.convert import instance_map_to_msg, transform_msg
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
+    from sgreg_core.runtime.clock import seconds_to_ns
     from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
     from sgreg_core.simulation.walks import WalkConfig, level_transform, simulate
 
@@ -174,7 +175,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         gt = w.add_connection(GT_TOPIC, "geometry_msgs/msg/TransformStamped", typestore=store,
                               offered_qos_profiles=[offered_qos(qos_for(GT_TOPIC))])
         for i, (t, name, imap) in enumerate(events):
-            stamp_ns = int(T_ORIGIN) * 1_000_000_000 + int(round(t * 1e9))
+            stamp_ns = int(T_ORIGIN) * 1_000_000_000 + seconds_to_ns(t)   # exact: no epoch in a float
             msg = instance_map_to_msg(imap, name, seq[name], stamp_ns)
             seq[name] += 1
             w.write(conns[name], stamp_ns, serialize_message(msg))

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..geometry import invert_transform
 from ..metrics import rre, rte
+from ..runtime.clock import seconds_to_ns
 from ..runtime.merge import MergeConfig, MergeResult, Merger
 from .replay_score import ground_truth
 
@@ -45,7 +46,7 @@ def merge_report(records, T_scene_map: dict, poses: dict | None = None, step_s: 
         nonlocal i
         while i < len(records) and stamp[i] <= t:
             r = records[i]
-            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, int(stamp[i] * 1e9))
+            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, seconds_to_ns(stamp[i]))
             i += 1
         merger.update()
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..net.model import SGRegModel
 from ..runtime.agent import AgentConfig, AgentCore
+from ..runtime.clock import seconds_to_ns
 from ..runtime.messages import GraphMessage
 from ..runtime.merge import MergeConfig, Merger
 from ..runtime.peers import Peers, PeersConfig
@@ -52,11 +53,6 @@ class OfflineReplayConfig:
     peers: PeersConfig = field(default_factory=PeersConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
     seed: int = 0
-
-
-def _ns(t: float) -> int:
-    """A map stamp (ns) of a moment of the virtual clock (s)."""
-    return int(round(t * 1e9))
 
 
 def _over_the_wire(msg: GraphMessage, encoding: int) -> GraphMessage:
@@ -110,7 +106,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
             break
         agent = agents[name]
         if kind == 0:
-            why = peers_of[name].take_own_map(imap, map_seq[name], _ns(now))
+            why = peers_of[name].take_own_map(imap, map_seq[name], seconds_to_ns(now))
             map_seq[name] += 1
             if why is not None:
                 log(f"{name}: {why}")

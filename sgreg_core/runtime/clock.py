@@ -14,6 +14,7 @@ Map stamps travel as integer ns, so that a result carries its map's header stamp
 Public API:
     RunClock.read(sim_active, ros_ns, steady_s) -> seconds since the clock started
     stamp_ns(value) -> int   a map stamp, refused (TypeError) unless integer nanoseconds
+    seconds_to_ns(t) -> int  a moment in seconds (a virtual clock, a bag's offset) as a stamp
 """
 from __future__ import annotations
 
@@ -26,6 +27,12 @@ def stamp_ns(value) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise TypeError(f"map stamps are integer nanoseconds, got {value!r}")
     return int(value)
+
+
+def seconds_to_ns(t: float) -> int:
+    """t seconds as integer ns, to the nearest (only times small enough for float seconds to
+    hold ns: offsets and virtual clocks, not today's epoch)."""
+    return int(round(t * 1e9))
 
 
 class RunClock:
