@@ -48,6 +48,7 @@ import numpy as np
 from .net.model import NodeFeatures, SGRegModel
 from .pose import PoseConfig, ReferenceCloud, estimate_pose, nms_correspondences
 from .pose.estimator import as_points, cloud_verifier
+from .pose.geometric import GeometricConfig, geometric_estimate
 from .pose.guided import GuidedConfig, center_poses, guided_matches
 from .pose.repeats import RepeatConfig, placements, rival_fitness
 from .pose.verdict import Evidence, VerdictConfig
@@ -109,7 +110,9 @@ class PipelineConfig:
                     maps share four or five objects, and a wrong clique of centers hides the
                     right one (docs/VERDICT.md section 11).
     repeats:        look-alike placements of the source graph in the reference, and the
-                    gates for maps that do not repeat it (pose/repeats.py)."""
+                    gates for maps that do not repeat it (pose/repeats.py).
+    geometric:      a pose from the clouds' geometry alone when every semantic route of a
+                    dense estimate with clouds was refused (pose/geometric.py)."""
 
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
@@ -121,6 +124,7 @@ class PipelineConfig:
     guided: GuidedConfig = field(default_factory=GuidedConfig)
     coarse_pairs: int = 8
     repeats: RepeatConfig = field(default_factory=RepeatConfig)
+    geometric: GeometricConfig = field(default_factory=GeometricConfig)
 
     def __post_init__(self):
         if self.coarse_pairs < 0:
@@ -210,6 +214,8 @@ class Registration:
                      measure of the verdict (pose/verify.py; NaN without clouds).
     refined:         True when T is the ICP refinement.
     guided:          True when the estimate needed guided point matches (pose/guided.py).
+    geometric:       True when the estimate is the clouds' geometric pose (pose/geometric.py):
+                     its confidence is the geometric model's.
     guided_pairs:    the last guided_pairs of corr are those guided matches: made at the pose,
                      they are no evidence for a later estimate and are not kept (inlier_corr).
     repeat:          under the gates for unrepeated maps, the best look-alike placement's
@@ -220,7 +226,8 @@ class Registration:
     timing_ms:       milliseconds per TIMING_STAGES entry that ran, and "total".
     pose_timing_ms:  the estimator's own steps (nms, gnc, clique, candidates, verify, icp) of
                      the first estimate, "guided": the whole guided pass when it ran, and
-                     "repeats": the estimate under the gates for unrepeated maps when it ran."""
+                     "repeats": the estimate under the gates for unrepeated maps when it ran,
+                     "geometric": the geometric pose when it ran."""
 
     T: np.ndarray = field(default_factory=lambda: np.eye(4))
     T_levelled: np.ndarray = field(default_factory=lambda: np.eye(4))
@@ -243,6 +250,7 @@ class Registration:
     footprint_fitness: float = float("nan")
     refined: bool = False
     guided: bool = False
+    geometric: bool = False
     guided_pairs: int = 0
     repeat: float = float("nan")
     unrepeated: bool = False
@@ -288,6 +296,7 @@ class Registration:
             "footprint_fitness": _finite_or_none(self.footprint_fitness),
             "refined": bool(self.refined),
             "guided": bool(self.guided),
+            "geometric": bool(self.geometric),
             "repeat": _finite_or_none(self.repeat),
             "unrepeated": bool(self.unrepeated),
             "evidence": {k: _finite_or_none(v) if isinstance(v, float) else v
@@ -380,7 +389,8 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     guided_on = cfg.guided.enabled and dense_clouds
     coarse_retry = (out.mode == "coarse" and cfg.coarse_pairs > 0 and src_cloud is not None
                     and ref_cloud is not None)
-    second_pass = guided_on or (cfg.repeats.enabled and dense_clouds) or coarse_retry
+    geometric_on = cfg.geometric.enabled and dense_clouds
+    second_pass = guided_on or (cfg.repeats.enabled and dense_clouds) or coarse_retry or geometric_on
     if second_pass and not isinstance(ref_cloud, ReferenceCloud) and as_points(ref_cloud) is not None:
         # one reference for every pass: building it is most of the pose time
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
@@ -419,6 +429,15 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         if second.success:
             res = second
         pose_ms["pairs"] = 1e3 * (time.perf_counter() - t_pairs)
+    if geometric_on and res.reason in cfg.geometric.after and isinstance(ref_cloud, ReferenceCloud):
+        t_geo = time.perf_counter()
+        verifier = cloud_verifier(src_cloud, ref_cloud, pose_cfg)
+        geo = None if verifier is None else geometric_estimate(
+            corr.src_xyz, corr.ref_xyz, groups, as_points(src_cloud), verifier, res.hypotheses,
+            pose_cfg, cfg.geometric)
+        if geo is not None and geo.success:
+            res, out.geometric = geo, True
+        pose_ms["geometric"] = 1e3 * (time.perf_counter() - t_geo)
     _add(timings, "pose", t0)
     out.success, out.reason, out.T, out.refined = bool(res.success), res.reason, res.T, res.refined
     out.T_levelled = res.T

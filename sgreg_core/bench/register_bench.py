@@ -122,6 +122,7 @@ def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
     row.update({f"ms_pose_{k}": float(v) for k, v in reg.pose_timing_ms.items()})
     row["refined"] = reg.refined
     row["guided"] = reg.guided
+    row["geometric"] = reg.geometric
     row["unrepeated"] = reg.unrepeated
     row["repeat"] = reg.repeat
     row["evidence"] = dict(vars(reg.evidence))     # what the verdict weighed (choose_verdict.py)

@@ -192,7 +192,7 @@ def _per_corr(a, n: int) -> np.ndarray | None:
     return a if a.shape == (n,) else None
 
 
-def _spread(pts: np.ndarray, dof: int) -> float:
+def spread_of(pts: np.ndarray, dof: int) -> float:
     """Second principal std (SE(3)) or largest horizontal std (4-DoF) of the inliers."""
     if dof == 4:
         return float(principal_spread(np.c_[pts[:, :2], np.zeros(len(pts))])[0])
@@ -420,7 +420,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     result.inlier_ratio = float(inl.mean())
     result.inlier_mask[keep[inl]] = True
     result.inlier_groups = np.unique(gk[inl])
-    result.spread = _spread(s[inl], cfg.dof) if inl.any() else 0.0
+    result.spread = spread_of(s[inl], cfg.dof) if inl.any() else 0.0
     vcfg = cfg.verdict
     ev = Evidence(inliers=result.inliers, inlier_ratio=result.inlier_ratio,
                   objects=int(result.inlier_groups.size), spread=result.spread)

@@ -127,6 +127,8 @@ class Estimate:
     @property
     def evidence(self) -> dict:
         """The verdict's evidence (pose.verdict.Evidence) as a dict, with the repeat check
-        (pose/repeats.py: repeat, unrepeated) of the registration."""
+        (pose/repeats.py: repeat, unrepeated) and whether the pose is the clouds' geometric
+        one (pose/geometric.py) of the registration."""
         reg = self.registration
-        return {**vars(reg.evidence), "repeat": reg.repeat, "unrepeated": reg.unrepeated}
+        return {**vars(reg.evidence), "repeat": reg.repeat, "unrepeated": reg.unrepeated,
+                "geometric": reg.geometric}

@@ -10,6 +10,7 @@ from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointM
 from sgreg_core.pipeline import PipelineConfig, register_features
 from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, make_T,
                              yaw_rotation)
+from sgreg_core.pose.geometric import GeometricConfig
 from sgreg_core.pose.guided import GuidedConfig, center_poses, guided_matches
 
 from test_pose_estimator import box_room, pose_error
@@ -148,7 +149,9 @@ def right_nodes_wrong_points():
 def test_a_pair_with_only_wrong_point_matches_is_registered_by_guided_matching():
     room, ctr, T, src, ref = right_nodes_wrong_points()
     ref_room = apply_T(T, room)
-    off = replace(PipelineConfig(), guided=GuidedConfig(enabled=False))
+    # without guided matching (and the geometric pose, which would find this room too) it fails
+    off = replace(PipelineConfig(), guided=GuidedConfig(enabled=False),
+                  geometric=GeometricConfig(enabled=False))
     plain = register_features(ScriptedMatcher(np.random.default_rng(3), len(ctr)), src, ref, room,
                               ref_room, off)
     assert not plain.success and not plain.guided
@@ -229,7 +232,8 @@ def test_guided_matching_answers_only_the_reasons_it_is_given_and_needs_its_obje
     ref = features(ref_pts, apply_T(T, ctr + rng.normal(0, 0.15, ctr.shape)))
 
     def run(**guided):
-        cfg = replace(PipelineConfig(), guided=GuidedConfig(enabled=True, **guided))
+        cfg = replace(PipelineConfig(), guided=GuidedConfig(enabled=True, **guided),
+                      geometric=GeometricConfig(enabled=False))
         return register_features(ScriptedMatcher(np.random.default_rng(5), len(ctr)), src, ref,
                                  room, apply_T(T, room), cfg)
 

@@ -91,6 +91,7 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
 
     from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
     from sgreg_core.pipeline import PipelineConfig, register_features
+    from sgreg_core.pose.geometric import GeometricConfig
     from test_pose_guided import K, sample
 
     rng = np.random.default_rng(4)
@@ -117,7 +118,9 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
 
     src = features(pts, ctr, desc)
     # a confidence model under which this pair falls between the strict and the relaxed gate
-    strict = PipelineConfig(repeats=RepeatConfig(enabled=False)).with_verdict(
+    # (the geometric pose, which finds this furnished room on its own, is left out)
+    strict = PipelineConfig(repeats=RepeatConfig(enabled=False),
+                            geometric=GeometricConfig(enabled=False)).with_verdict(
         confidence_weights=(-21.0, 2.5, 15.0, -0.5, -2.4, 1.4))
     on = replace(strict, repeats=RepeatConfig(min_confidence=0.5))    # on by default
     one = features(apply_T(T, pts.reshape(-1, 3)).reshape(pts.shape), apply_T(T, ctr), desc)
@@ -136,6 +139,10 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
     in_twins = register_features(RightMatcher(), src, two, room, apply_T(T, twin(room)), on)
     assert not in_twins.success and not in_twins.unrepeated
     assert in_twins.repeat >= on.repeats.max_repeat
+    # nor does the geometric pose verify the twin room
+    geo = register_features(RightMatcher(), src, two, room, apply_T(T, twin(room)),
+                            replace(on, geometric=GeometricConfig()))
+    assert not geo.success or np.linalg.norm(geo.T[:3, 3] - T[:3, 3]) < 0.05, (geo.reason, geo.geometric)
 
     # a reference that holds the floor up to two walls it never mapped: only with the probe do
     # those walls count neither for nor against the right pose under the laxer gates

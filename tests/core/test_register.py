@@ -87,7 +87,8 @@ def test_set_overrides_the_pipeline_config(data, capsys):
     lands in the pose config); a key that does not exist, a value out of range or not YAML, a
     section given a value: one line on stderr and exit 2, not a traceback."""
     root, _ = data
-    code, res = _register(root, "src", "ref", "--set", "pose.verdict.min_inliers=100000")
+    code, res = _register(root, "src", "ref", "--set", "pose.verdict.min_inliers=100000",
+                          "--set", "geometric.enabled=false")
     assert code == 1 and res["reason"] == "too_few_inliers"
     args = argparse.Namespace(coarse=False, no_icp=False, overrides=["pose.footprint_rim=1"])
     assert pipeline_config(args).pose_config().footprint_rim == 1

@@ -1,0 +1,195 @@
+"""A pose from the clouds' geometry alone, for pairs whose objects a front end garbled.
+
+Under a mapping front end's errors (confused classes, merged and invented instances) two maps of
+one room may share only one or two objects a network can match, and every semantic route of the
+pipeline (learned point matches, guided matches, node-center pair poses) is refused: too few
+objects agree, however well their points fit. The walls, furniture and clutter of the overlap
+still register. So when a dense estimate is refused, KISS-Matcher (faster-PFH features, graph
+pruning, GNC; Lim et al. 2025) estimates a pose from the source's points and the reference
+cloud, ICP brings it onto the clouds, and it is taken on geometric evidence only, judged more
+strictly than a semantic estimate (on training-room pairs, right geometric poses reached a
+footprint fitness of 0.70 and more, wrong ones at most 0.36; docs/VERDICT.md section 13):
+
+- the footprint fitness reaches `min_fitness`, and enough of the source lands on the
+  reference's footprint (`min_footprint_share`);
+- no rival fits nearly as well: the semantic route's own hypotheses far from the pose, each
+  refined by ICP, are its rivals, and a rival whose fitness reaches `max_ambiguity` of the
+  pose's is a tie (identical rooms, a slide along a wall);
+- the confidence (a logistic model of fitness, footprint share and ambiguity, fitted on the
+  training rooms' pairs: scripts/choose_geometric.py) reaches the verdict's `min_confidence`.
+
+Public API:
+    GeometricConfig
+    geometric_hypothesis(src_cloud, ref_points, cfg) -> (4, 4) T or None
+    geometric_confidence(evidence, cfg) -> float in [0, 1]
+    judge_geometric(evidence, verdict, cfg) -> reason ("ok" or a verdict.REASONS entry)
+    geometric_estimate(src_xyz, ref_xyz, groups, src_cloud, verifier, rivals, pose_cfg, cfg)
+        -> PoseResult (None when the solver found no pose)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .estimator import PoseConfig, PoseResult, far_apart, refine_icp_coarse_to_fine, spread_of
+from .solvers import residuals
+from .verdict import REASONS, Evidence, VerdictConfig
+from .verify import CloudVerifier, voxel_downsample
+
+# what a dense estimate can be refused for (the estimator's reason before the verdict's); a
+# near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
+REFUSALS = ("too_few_correspondences",) + tuple(r for r in REASONS[1:] if r != "ambiguous")
+
+
+@dataclass
+class GeometricConfig:
+    """enabled:        estimate a pose from the clouds when a dense estimate with clouds is
+                       refused for a reason in `after`.
+    voxel:             m, KISS-Matcher's voxel (its feature radii scale with it): 0.1 found the
+                       pose of more training-room pairs than 0.05 on the node points a dense
+                       message carries, in a third of the time.
+    min_points:        source and reference points the solver needs.
+    min_voxels:        occupied voxels (of `voxel`) the source needs: the surface the features
+                       describe. The node points of a whole view of a training-room pair fill
+                       1700-10000; a dense message of a live map carries a sparse sample of its
+                       nodes (300-1700 points in the synthetic suite, 1350 voxels at most), on
+                       which the solver found no right pose there, at 150-300 ms each.
+    icp_distances:     m, correspondence distances of the coarse-to-fine ICP of the pose and of
+                       its rivals.
+    icp_max_iters:     ICP iterations per distance.
+    rivals:            semantic hypotheses far from the pose refined and verified as rivals, at
+                       most (the estimator's order: GNC over all, then the cliques').
+    min_fitness:       footprint fitness the pose needs after ICP.
+    min_footprint_share: share of the source that must land on the reference's footprint.
+    max_ambiguity:     a rival whose footprint fitness reaches this share of the pose's is a tie.
+    confidence_weights: logistic weights of (bias, footprint fitness, footprint share,
+                       ambiguity), fitted by scripts/choose_geometric.py on training-room pairs.
+    after:             the refusals a geometric pose may answer."""
+
+    enabled: bool = True
+    voxel: float = 0.1
+    min_points: int = 50
+    min_voxels: int = 1500
+    icp_distances: tuple[float, ...] = (0.25, 0.1)
+    icp_max_iters: int = 15
+    rivals: int = 3
+    min_fitness: float = 0.7
+    min_footprint_share: float = 0.3
+    max_ambiguity: float = 0.8
+    confidence_weights: tuple[float, ...] = (-0.585, 11.588, -1.365, -9.476)
+    after: tuple[str, ...] = REFUSALS
+
+    def __post_init__(self):
+        bad = [r for r in self.after if r not in REFUSALS]
+        if bad:
+            raise ValueError(f"geometric.after: {bad} are not refusals a geometric pose may "
+                             f"answer; choose from {list(REFUSALS)}")
+        if not (self.voxel > 0 and self.min_points >= 3 and self.min_voxels >= 0 and self.icp_max_iters >= 1
+                and self.rivals >= 0 and self.max_ambiguity > 0):
+            raise ValueError("geometric: voxel and max_ambiguity must be > 0, min_points >= 3, "
+                             "min_voxels, rivals >= 0, icp_max_iters >= 1")
+        if not all(0.0 <= v <= 1.0 for v in (self.min_fitness, self.min_footprint_share)):
+            raise ValueError("geometric: min_fitness and min_footprint_share are shares in [0, 1]")
+        if not self.icp_distances or min(self.icp_distances) <= 0:
+            raise ValueError("geometric: icp_distances must be positive distances")
+        w = np.asarray(self.confidence_weights, np.float64)
+        if w.shape != (4,) or not np.isfinite(w).all():
+            raise ValueError("geometric: confidence_weights must be 4 finite numbers (bias, "
+                             "fitness, footprint share, ambiguity)")
+
+
+def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
+                         cfg: GeometricConfig) -> np.ndarray | None:
+    """KISS-Matcher's pose of src_cloud onto ref_points, or None when either is too small (the
+    source also by cfg.min_voxels) or the solver finds no valid solution. Deterministic (no
+    random sampling in its pipeline)."""
+    import kiss_matcher  # compiled extension: imported only when a geometric pose is needed
+
+    src = np.asarray(src_cloud, np.float32).reshape(-1, 3)
+    ref = np.asarray(ref_points, np.float32).reshape(-1, 3)
+    src, ref = src[np.isfinite(src).all(1)], ref[np.isfinite(ref).all(1)]
+    if min(src.shape[0], ref.shape[0]) < cfg.min_points \
+            or voxel_downsample(src, cfg.voxel).shape[0] < cfg.min_voxels:
+        return None
+    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(cfg.voxel))
+    sol = matcher.estimate(src, ref)
+    if not sol.valid:
+        return None
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(sol.rotation, np.float64)
+    T[:3, 3] = np.asarray(sol.translation, np.float64).reshape(3)
+    return T if np.isfinite(T).all() else None
+
+
+def geometric_confidence(ev: Evidence, cfg: GeometricConfig) -> float:
+    """P(pose right | geometric evidence) from the logistic model of cfg.confidence_weights."""
+    def finite(v):
+        return float(v) if np.isfinite(v) else 0.0
+
+    x = np.array([1.0, finite(ev.fitness), finite(ev.footprint_share), min(finite(ev.ambiguity), 1.5)])
+    z = float(x @ np.asarray(cfg.confidence_weights, np.float64))
+    return float(1.0 / (1.0 + np.exp(-z)))
+
+
+def judge_geometric(ev: Evidence, verdict: VerdictConfig, cfg: GeometricConfig) -> str:
+    """"ok", or why the geometric pose is refused: the clouds do not support it, a rival fits
+    nearly as well, or its confidence falls short of the verdict's bar."""
+    if not (ev.fitness >= cfg.min_fitness and ev.footprint_share >= cfg.min_footprint_share):
+        return "verification_failed"
+    if ev.ambiguity >= cfg.max_ambiguity:
+        return "ambiguous"
+    if geometric_confidence(ev, cfg) < verdict.min_confidence:
+        return "low_confidence"
+    return "ok"
+
+
+def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndarray,
+                       src_cloud: np.ndarray, verifier: CloudVerifier, rivals: list[np.ndarray],
+                       pose_cfg: PoseConfig, cfg: GeometricConfig) -> PoseResult | None:
+    """The geometric pose of src_cloud onto the verifier's reference, refined by ICP and judged
+    (judge_geometric). src_xyz / ref_xyz / groups: the semantic correspondences, which say how
+    many objects agree with the pose (reported, not required) and which of them a runtime may
+    keep; rivals: the semantic route's hypotheses. None when the solver found no pose."""
+    T0 = geometric_hypothesis(src_cloud, verifier.reference.points, cfg) if verifier.valid else None
+    if T0 is None:
+        return None
+    T = refine_icp_coarse_to_fine(verifier, T0, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
+    ver = verifier(T)
+    n = src_xyz.shape[0]
+    inl = residuals(T, src_xyz, ref_xyz) <= pose_cfg.noise_bound if n else np.zeros(0, bool)
+    ev = Evidence(inliers=int(inl.sum()), inlier_ratio=float(inl.mean()) if n else 0.0,
+                  objects=int(np.unique(groups[inl]).size),
+                  spread=spread_of(src_xyz[inl], pose_cfg.dof) if inl.any() else 0.0,
+                  fitness=ver.footprint_fitness, footprint_share=ver.footprint_share)
+    # rivals cost an ICP each: only for a pose the clouds support (a refused one stays refused)
+    supported = ev.fitness >= cfg.min_fitness and ev.footprint_share >= cfg.min_footprint_share
+    rival = _best_rival(T, rivals, verifier, pose_cfg, cfg) if supported else None
+    if rival is not None:
+        ev.competitor_fitness = rival[1]
+        ev.ambiguity = ev.competitor_fitness / max(ev.fitness, 1e-9)
+    reason = judge_geometric(ev, pose_cfg.verdict, cfg)
+    return PoseResult(T=T, T_estimate=T0, refined=True, success=reason == "ok", reason=reason,
+                      confidence=geometric_confidence(ev, cfg), evidence=ev,
+                      inliers=ev.inliers, inlier_ratio=ev.inlier_ratio, inlier_mask=inl,
+                      inlier_groups=np.unique(groups[inl]), num_correspondences=n, candidates=1,
+                      hypotheses=[T0], spread=ev.spread,
+                      T_competitor=None if rival is None else rival[0], fitness=ver.fitness,
+                      overlap=ver.overlap, verify_score=ver.score, rmse=ver.rmse,
+                      footprint_share=ver.footprint_share, footprint_fitness=ver.footprint_fitness)
+
+
+def _best_rival(T: np.ndarray, rivals: list[np.ndarray], verifier: CloudVerifier,
+                pose_cfg: PoseConfig, cfg: GeometricConfig) -> tuple[np.ndarray, float] | None:
+    """The best fitting of the first cfg.rivals hypotheses far from T that stay far from it once
+    ICP has refined them: (pose, footprint fitness), or None."""
+    best = None
+    far = [R for R in rivals if far_apart(R, T, pose_cfg.verdict)][: cfg.rivals]
+    for R in far:
+        R = refine_icp_coarse_to_fine(verifier, R, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
+        if not far_apart(R, T, pose_cfg.verdict):
+            continue
+        fit = verifier(R).footprint_fitness
+        if best is None or fit > best[1]:
+            best = R, fit
+    return best
