@@ -31,6 +31,8 @@ from sgreg_core.pose.estimator import cloud_verifier, pose_hypotheses
 from sgreg_core.pose.geometric import geometric_confidence, geometric_estimate, judge_geometric
 from sgreg_core.pose.verdict import Evidence
 
+from choose_verdict import fit_logistic   # scripts/, beside this one
+
 TRAINING_ROOMS = ("scene0000", "scene0001", "scene0002", "scene0003", "scene0004")
 
 
@@ -67,22 +69,6 @@ def poses(seeds, settings, cfg: PipelineConfig) -> list[dict]:
     return out
 
 
-def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50) -> np.ndarray:
-    """Newton's method on the L2-regularised log-likelihood (the bias is not regularised)."""
-    w = np.zeros(X.shape[1])
-    reg = np.full(X.shape[1], l2)
-    reg[0] = 0.0
-    for _ in range(iters):
-        p = 1.0 / (1.0 + np.exp(-X @ w))
-        grad = X.T @ (p - y) + reg * w
-        H = (X * (p * (1 - p))[:, None]).T @ X + np.diag(reg + 1e-9)
-        step = np.linalg.solve(H, grad)
-        w -= step
-        if np.abs(step).max() < 1e-8:
-            break
-    return w
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4])
@@ -99,7 +85,7 @@ def main() -> None:
             v = X[sel, col]
             if v.size:
                 print(f"  {name:16s} {label}: min {v.min():.2f} median {np.median(v):.2f} max {v.max():.2f}")
-    w = fit_logistic(X, y)
+    w = fit_logistic(X, y, free_bias=True)
     print("fitted confidence_weights:", tuple(round(float(x), 3) for x in w))
     fitted = replace(cfg.geometric, confidence_weights=tuple(float(x) for x in w))
     accepted = np.array([judge_geometric(Evidence(fitness=r["fitness"], footprint_share=r["footprint_share"],

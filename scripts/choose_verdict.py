@@ -109,13 +109,18 @@ def design(frames: list[dict]) -> np.ndarray:
                      col("footprint_share"), np.minimum(col("ambiguity"), 1.5), col("inlier_ratio")], 1)
 
 
-def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50) -> np.ndarray:
-    """Newton's method on the L2-regularised log-likelihood."""
+def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50,
+                 free_bias: bool = False) -> np.ndarray:
+    """Newton's method on the L2-regularised log-likelihood; free_bias: the first column (the
+    bias) is not regularised (where the classes separate, the bias must run free)."""
     w = np.zeros(X.shape[1])
+    reg = np.full(X.shape[1], l2)
+    if free_bias:
+        reg[0] = 0.0
     for _ in range(iters):
         p = 1 / (1 + np.exp(-X @ w))
-        g = X.T @ (p - y) + l2 * w
-        H = X.T @ (X * (p * (1 - p))[:, None]) + l2 * np.eye(X.shape[1])
+        g = X.T @ (p - y) + reg * w
+        H = X.T @ (X * (p * (1 - p))[:, None]) + np.diag(reg + 1e-9)
         step = np.linalg.solve(H, g)
         w -= step
         if np.abs(step).max() < 1e-8:
