@@ -102,8 +102,9 @@ class GeometricConfig:
 def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
                          cfg: GeometricConfig) -> np.ndarray | None:
     """KISS-Matcher's pose of src_cloud onto ref_points, or None when either is too small (the
-    source also by cfg.min_voxels) or the solver finds no valid solution. Deterministic (no
-    random sampling in its pipeline)."""
+    source also by cfg.min_voxels) or the solver finds no valid solution. Not bit-for-bit
+    repeatable: the solver's threads may order its work differently from run to run (poses
+    1e-4 apart on a test room), which can tip a borderline pair across a gate."""
     import kiss_matcher  # compiled extension: imported only when a geometric pose is needed
 
     src = np.asarray(src_cloud, np.float32).reshape(-1, 3)
