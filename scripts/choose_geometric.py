@@ -27,7 +27,7 @@ from sgreg_core.metrics import registration_success
 from sgreg_core.net.model import load_model
 from sgreg_core.pipeline import PipelineConfig, build_graphs, node_cloud, reference_cloud
 from sgreg_core.pose import ReferenceCloud
-from sgreg_core.pose.estimator import cloud_verifier, pose_hypotheses
+from sgreg_core.pose.estimator import pose_hypotheses
 from sgreg_core.pose.geometric import geometric_confidence, geometric_estimate, judge_geometric
 from sgreg_core.pose.verdict import Evidence
 
@@ -52,8 +52,7 @@ def poses(seeds, settings, cfg: PipelineConfig) -> list[dict]:
             rivals = pose_hypotheses(s, r, w, np.full(len(w), pose_cfg.noise_bound), pose_cfg) \
                 if len(w) >= 3 else []
             reference = ReferenceCloud(reference_cloud(rg), pose_cfg.verify_voxel, pose_cfg.footprint_cell)
-            verifier = cloud_verifier(node_cloud(sg), reference, pose_cfg)
-            geo = geometric_estimate(s, r, np.asarray(pts.node_match), node_cloud(sg), verifier,
+            geo = geometric_estimate(s, r, np.asarray(pts.node_match), node_cloud(sg), reference,
                                      rivals, pose_cfg, cfg.geometric)
             if geo is None:
                 continue

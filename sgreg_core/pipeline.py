@@ -431,10 +431,10 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         pose_ms["pairs"] = 1e3 * (time.perf_counter() - t_pairs)
     if geometric_on and res.reason in cfg.geometric.after and isinstance(ref_cloud, ReferenceCloud):
         t_geo = time.perf_counter()
-        verifier = cloud_verifier(src_cloud, ref_cloud, pose_cfg)
-        geo = None if verifier is None else geometric_estimate(
-            corr.src_xyz, corr.ref_xyz, groups, as_points(src_cloud), verifier, res.hypotheses,
-            pose_cfg, cfg.geometric)
+        src_points = as_points(src_cloud)
+        geo = None if src_points is None else geometric_estimate(
+            corr.src_xyz, corr.ref_xyz, groups, src_points, ref_cloud, res.hypotheses, pose_cfg,
+            cfg.geometric)
         if geo is not None and geo.success:
             res, out.geometric = geo, True
         pose_ms["geometric"] = 1e3 * (time.perf_counter() - t_geo)

@@ -8,7 +8,7 @@ still register. So when a dense estimate is refused, KISS-Matcher (faster-PFH fe
 pruning, GNC; Lim et al. 2025) estimates a pose from the source's points and the reference
 cloud, ICP brings it onto the clouds, and it is taken on geometric evidence only, judged more
 strictly than a semantic estimate (on training-room pairs, right geometric poses reached a
-footprint fitness of 0.70 and more, wrong ones at most 0.36; docs/VERDICT.md section 13):
+footprint fitness of 0.60-0.99, wrong ones at most 0.42; docs/VERDICT.md section 13):
 
 - the footprint fitness reaches `min_fitness`, and enough of the source lands on the
   reference's footprint (`min_footprint_share`);
@@ -23,7 +23,7 @@ Public API:
     geometric_hypothesis(src_cloud, ref_points, cfg) -> (4, 4) T or None
     geometric_confidence(evidence, cfg) -> float in [0, 1]
     judge_geometric(evidence, verdict, cfg) -> reason ("ok" or a verdict.REASONS entry)
-    geometric_estimate(src_xyz, ref_xyz, groups, src_cloud, verifier, rivals, pose_cfg, cfg)
+    geometric_estimate(src_xyz, ref_xyz, groups, src_cloud, reference, rivals, pose_cfg, cfg)
         -> PoseResult (None when the solver found no pose)
 """
 from __future__ import annotations
@@ -32,10 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .estimator import PoseConfig, PoseResult, far_apart, refine_icp_coarse_to_fine, spread_of
+from .estimator import (PoseConfig, PoseResult, cloud_verifier, far_apart,
+                        refine_icp_coarse_to_fine, spread_of)
 from .solvers import residuals
 from .verdict import REASONS, Evidence, VerdictConfig
-from .verify import CloudVerifier, voxel_downsample
+from .verify import CloudVerifier, ReferenceCloud, voxel_downsample
 
 # what a dense estimate can be refused for (the estimator's reason before the verdict's); a
 # near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
@@ -146,14 +147,19 @@ def judge_geometric(ev: Evidence, verdict: VerdictConfig, cfg: GeometricConfig) 
 
 
 def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndarray,
-                       src_cloud: np.ndarray, verifier: CloudVerifier, rivals: list[np.ndarray],
+                       src_cloud: np.ndarray, reference: ReferenceCloud, rivals: list[np.ndarray],
                        pose_cfg: PoseConfig, cfg: GeometricConfig) -> PoseResult | None:
-    """The geometric pose of src_cloud onto the verifier's reference, refined by ICP and judged
-    (judge_geometric). src_xyz / ref_xyz / groups: the semantic correspondences, which say how
-    many objects agree with the pose (reported, not required) and which of them a runtime may
-    keep; rivals: the semantic route's hypotheses. None when the solver found no pose."""
-    T0 = geometric_hypothesis(src_cloud, verifier.reference.points, cfg) if verifier.valid else None
-    if T0 is None:
+    """The geometric pose of src_cloud onto the reference, refined by ICP on pose_cfg's
+    verification clouds and judged (judge_geometric). src_xyz / ref_xyz / groups: the semantic
+    correspondences, which say how many objects agree with the pose (reported, not required)
+    and which of them a runtime may keep; rivals: the semantic route's hypotheses. None when the
+    solver found no pose (the verification clouds are built only once it has one: most live
+    sources are too small to try)."""
+    if not reference.valid:
+        return None
+    T0 = geometric_hypothesis(src_cloud, reference.points, cfg)
+    verifier = None if T0 is None else cloud_verifier(src_cloud, reference, pose_cfg)
+    if verifier is None or not verifier.valid:
         return None
     T = refine_icp_coarse_to_fine(verifier, T0, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
     ver = verifier(T)

@@ -9,7 +9,7 @@ import pytest
 
 from sgreg_core.net.model import DenseMatches, NodeMatches, PointMatches
 from sgreg_core.pipeline import PipelineConfig, register_features
-from sgreg_core.pose import CloudVerifier, apply_T, make_T, yaw_rotation
+from sgreg_core.pose import CloudVerifier, ReferenceCloud, apply_T, make_T, yaw_rotation
 from sgreg_core.pose.geometric import (GeometricConfig, geometric_confidence, geometric_hypothesis,
                                        judge_geometric)
 from sgreg_core.pose.verdict import Evidence, VerdictConfig
@@ -126,13 +126,13 @@ def test_a_rival_that_fits_as_well_makes_a_tie(monkeypatch):
     import sgreg_core.pose.geometric as geometric
     room, ref_room, T, src, ref = garbled_pair()
     flipped = make_T(yaw_rotation(np.pi), np.zeros(3))
-    verifier = CloudVerifier(room, ref_room, 0.1, 0.1, 1500, 0, 0.2, 0)
+    pose_cfg = PipelineConfig().pose
+    reference = ReferenceCloud(ref_room, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     # a rival as well supported as the pose: the verifier scores every pose as it scores T
     score = CloudVerifier.__call__
     monkeypatch.setattr(CloudVerifier, "__call__", lambda self, _: score(self, T))
-    pose_cfg = PipelineConfig().pose
     empty = np.zeros((0, 3))
-    res = geometric.geometric_estimate(empty, empty, np.zeros(0, np.int64), room, verifier,
+    res = geometric.geometric_estimate(empty, empty, np.zeros(0, np.int64), room, reference,
                                        [T @ flipped], pose_cfg, GeometricConfig())
     assert res is not None and res.reason == "ambiguous" and not res.success
     assert res.T_competitor is not None and res.evidence.ambiguity >= 0.99
