@@ -24,9 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from ..geometry import voxel_downsample
+from ..geometry import local_planes, voxel_downsample
 from ..types import InstanceMap
 
 
@@ -111,13 +110,9 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _planar_normals(pts: np.ndarray, k: int, max_planarity: float) -> np.ndarray:
     """Unit normals of the points whose k-neighbourhood is a plane."""
-    k = min(k, len(pts))
-    _, nn = cKDTree(pts).query(pts, k=k)
-    nb = pts[nn]
-    c = nb - nb.mean(1, keepdims=True)
-    vals, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", c, c))
+    normals, vals = local_planes(pts, k)
     planar = vals[:, 0] <= max_planarity * np.maximum(vals.sum(1), 1e-12)
-    return vecs[planar, :, 0]
+    return normals[planar]
 
 
 def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levelling:

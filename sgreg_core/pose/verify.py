@@ -53,6 +53,7 @@ class Verification:
 
 
 FAILED = Verification(0.0, 0.0, 0.0, np.inf, 0.0, 0.0)
+NORMAL_NEIGHBOURS = 10   # points per local plane fit of a normal
 
 
 def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
@@ -63,17 +64,6 @@ def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
     if voxel <= 0 or pts.shape[0] == 0:
         return pts
     return geometry.voxel_downsample(pts, voxel).astype(np.float64)
-
-
-def estimate_normals(pts: np.ndarray, tree: cKDTree, k: int = 10) -> np.ndarray:
-    """Unit normals from the smallest principal axis of each point's k nearest neighbours."""
-    k = min(k, pts.shape[0])
-    _, nn = tree.query(pts, k=k)
-    nb = pts[nn.reshape(pts.shape[0], k)]
-    c = nb - nb.mean(1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", c, c)
-    _, vecs = np.linalg.eigh(cov)
-    return vecs[:, :, 0]
 
 
 def check_probe(probe) -> float:
@@ -143,7 +133,7 @@ class ReferenceCloud:
         self.valid = self.points.shape[0] >= 3
         if self.valid:
             self.tree = cKDTree(self.points)
-            self.normals = estimate_normals(self.points, self.tree)
+            self.normals = geometry.local_planes(self.points, NORMAL_NEIGHBOURS, self.tree)[0]
             self.footprint = Footprint(self.points, footprint_cell)
 
 
@@ -179,7 +169,7 @@ class CloudVerifier:
             self.src = self.src[pick]
         self.scored, self.scored_normals = self.src, np.zeros_like(self.src)
         if self.src.shape[0] >= 3:
-            normals = estimate_normals(self.src, cKDTree(self.src))
+            normals = geometry.local_planes(self.src, NORMAL_NEIGHBOURS)[0]
             upright = np.abs(normals[:, 2]) <= HORIZONTAL_NZ
             self.scored, self.scored_normals = self.src[upright], normals[upright]
         self.valid = self.scored.shape[0] >= 3 and self.reference.valid
