@@ -13,7 +13,6 @@ Public API:
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -80,18 +79,25 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     return (sums / counts[:, None]).astype(np.float32)
 
 
-def local_planes(points: np.ndarray, k: int, tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's local plane from its k nearest neighbours (itself included; tree: a KD-tree
-    of `points` when the caller has one): the unit normal (the smallest principal axis, sign
-    arbitrary; +z where no plane is defined) and the eigenvalues of the neighbourhood's scatter
-    matrix, ascending, (N, 3) each.
+def local_planes(points: np.ndarray, k: int, tree=None) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's local plane from its k nearest neighbours (itself included; tree: a
+    scipy cKDTree of `points` when the caller has one): the unit normal (the smallest principal
+    axis, sign arbitrary) and the eigenvalues of the neighbourhood's scatter matrix S, ascending,
+    (N, 3) each. Where S vanishes (every neighbour at one point) the normal is +z.
 
-    Closed form for symmetric 3x3 matrices (trigonometric eigenvalues; the normal is the longest
-    cross product of two rows of S - l_min I): a third of the time of np.linalg.eigh on a map's
-    voxels, with the same normals to 1e-15."""
+    Closed form for symmetric 3x3 matrices, a third of the time of a batched np.linalg.eigh:
+    the eigenvalues from the trigonometric solution of the characteristic cubic, the normal as
+    the longest cross product of two rows of S - l_min I (rank 2: both rows are perpendicular
+    to it, and the longest pair is the best conditioned). Rows whose two smallest eigenvalues
+    nearly coincide (line-like neighbourhoods, their normal ill-defined anyway) lose digits in
+    the cubic's arccos and are solved by eigh instead, so the result is eigh's throughout."""
+    from scipy.spatial import cKDTree   # here: geometry's other helpers are imported everywhere
+
     pts = np.asarray(points, np.float64).reshape(-1, 3)
+    if int(k) < 1:
+        raise ValueError(f"local_planes: k must be >= 1, got {k!r}")
     k = min(int(k), len(pts))
-    if k < 1:
+    if k == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
     tree = cKDTree(pts) if tree is None else tree
     _, nn = tree.query(pts, k=k)
@@ -100,12 +106,13 @@ def local_planes(points: np.ndarray, k: int, tree: cKDTree | None = None) -> tup
     x, y, z = c[..., 0], c[..., 1], c[..., 2]
     s00, s11, s22 = (x * x).sum(1), (y * y).sum(1), (z * z).sum(1)
     s01, s02, s12 = (x * y).sum(1), (x * z).sum(1), (y * z).sum(1)
+    # S = q I + p B with tr(B) = 0, |B| fixed: the eigenvalues are q + 2p cos(phi + 2 pi j / 3)
     q = (s00 + s11 + s22) / 3.0
     b00, b11, b22 = s00 - q, s11 - q, s22 - q
     p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (s01 * s01 + s02 * s02 + s12 * s12)) / 6.0)
     det = b00 * (b11 * b22 - s12 * s12) - s01 * (s01 * b22 - s12 * s02) + s02 * (s01 * s12 - b11 * s02)
-    r = np.divide(det, 2.0 * p ** 3, out=np.zeros_like(p), where=p > 0)
-    phi = np.arccos(np.clip(r, -1.0, 1.0)) / 3.0
+    r = np.divide(det, 2.0 * p ** 3, out=np.zeros_like(p), where=p > 0)   # p = 0: S = q I
+    phi = np.arccos(np.clip(r, -1.0, 1.0)) / 3.0                          # rounding leaves [-1, 1]
     hi, lo = q + 2.0 * p * np.cos(phi), q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
     values = np.stack([lo, 3.0 * q - hi - lo, hi], 1)
     rows = np.stack([np.stack([s00 - lo, s01, s02], 1), np.stack([s01, s11 - lo, s12], 1),
@@ -118,4 +125,9 @@ def local_planes(points: np.ndarray, k: int, tree: cKDTree | None = None) -> tup
     normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
     ok = length[idx, best] > 0
     normals[ok] = cross[idx[ok], best[ok]] / length[idx[ok], best[ok], None]
+    close = values[:, 1] - values[:, 0] < 1e-3 * values[:, 2]
+    if close.any():
+        cc = c[close]
+        values[close], vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", cc, cc))
+        normals[close] = vecs[:, :, 0]
     return normals, values
