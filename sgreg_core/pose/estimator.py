@@ -9,6 +9,7 @@ confidence on the evidence gathered (pose/verdict.py).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -240,6 +241,22 @@ def refine_icp_coarse_to_fine(verifier: CloudVerifier, T: np.ndarray, cfg: PoseC
     for d in distances:
         T = refine_icp(verifier, T, replace(cfg, icp_distance=d, icp_max_iters=max_iters))
     return T
+
+
+def best_refined_rival(hypotheses: list[np.ndarray], verifier: CloudVerifier, cfg: PoseConfig,
+                       distances: tuple[float, ...], max_iters: int,
+                       far: Callable[[np.ndarray], bool]) -> tuple[np.ndarray, float] | None:
+    """The best footprint fit among hypotheses once coarse-to-fine ICP has brought each onto the
+    clouds, over those still far (far(T) holds: ICP may bring a rival back onto the estimate):
+    (pose, footprint fitness), the first on ties, or None when none stays far."""
+    best = None
+    for T in hypotheses:
+        T = refine_icp_coarse_to_fine(verifier, T, cfg, distances, max_iters)
+        if far(T):
+            fit = verifier(T).footprint_fitness
+            if best is None or fit > best[1]:
+                best = T, fit
+    return best
 
 
 def _clique_pyramid(s, r, b, w, deltas, cfg: PoseConfig):

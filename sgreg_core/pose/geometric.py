@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .estimator import (PoseConfig, PoseResult, cloud_verifier, far_apart,
+from .estimator import (PoseConfig, PoseResult, best_refined_rival, cloud_verifier, far_apart,
                         refine_icp_coarse_to_fine, spread_of)
 from .solvers import residuals
 from .verdict import REASONS, Evidence, VerdictConfig
-from .verify import CloudVerifier, ReferenceCloud, voxel_downsample
+from .verify import ReferenceCloud, voxel_downsample
 
 # what a dense estimate can be refused for (the estimator's reason before the verdict's); a
 # near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
@@ -171,7 +171,11 @@ def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndar
                   fitness=ver.footprint_fitness, footprint_share=ver.footprint_share)
     # rivals cost an ICP each: only for a pose the clouds support (a refused one stays refused)
     supported = ev.fitness >= cfg.min_fitness and ev.footprint_share >= cfg.min_footprint_share
-    rival = _best_rival(T, rivals, verifier, pose_cfg, cfg) if supported else None
+    rival = None
+    if supported:
+        far = [R for R in rivals if far_apart(R, T, pose_cfg.verdict)][: cfg.rivals]
+        rival = best_refined_rival(far, verifier, pose_cfg, cfg.icp_distances, cfg.icp_max_iters,
+                                   lambda R: far_apart(R, T, pose_cfg.verdict))
     if rival is not None:
         ev.competitor_fitness = rival[1]
         ev.ambiguity = ev.competitor_fitness / max(ev.fitness, 1e-9)
@@ -184,19 +188,3 @@ def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndar
                       T_competitor=None if rival is None else rival[0], fitness=ver.fitness,
                       overlap=ver.overlap, verify_score=ver.score, rmse=ver.rmse,
                       footprint_share=ver.footprint_share, footprint_fitness=ver.footprint_fitness)
-
-
-def _best_rival(T: np.ndarray, rivals: list[np.ndarray], verifier: CloudVerifier,
-                pose_cfg: PoseConfig, cfg: GeometricConfig) -> tuple[np.ndarray, float] | None:
-    """The best fitting of the first cfg.rivals hypotheses far from T that stay far from it once
-    ICP has refined them: (pose, footprint fitness), or None."""
-    best = None
-    far = [R for R in rivals if far_apart(R, T, pose_cfg.verdict)][: cfg.rivals]
-    for R in far:
-        R = refine_icp_coarse_to_fine(verifier, R, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
-        if not far_apart(R, T, pose_cfg.verdict):
-            continue
-        fit = verifier(R).footprint_fitness
-        if best is None or fit > best[1]:
-            best = R, fit
-    return best

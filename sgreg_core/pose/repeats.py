@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .estimator import PoseConfig, refine_icp_coarse_to_fine
+from .estimator import PoseConfig, best_refined_rival
 from .pairs import placement_support, yaw_hypotheses
 from .verdict import REASONS
 from .verify import CloudVerifier, check_probe, check_rim
@@ -201,10 +201,8 @@ def rival_fitness(place: Placements, T: np.ndarray, verifier: CloudVerifier, pos
     """The best footprint fitness of the rival placements once coarse-to-fine ICP has brought
     them onto the clouds (0 when none stays far from T; ICP may bring a rival back onto the
     estimate): how well the reference's geometry hosts the source elsewhere."""
-    best = 0.0
-    for T_h, _ in place.rivals:
-        T_h = refine_icp_coarse_to_fine(verifier, T_h, pose_cfg, cfg.icp_distances,
-                                        cfg.icp_max_iters)
-        if _far(T_h[:3, :3], T_h[:3, 3], T[:3, :3], T[:3, 3], place.centroid, cfg):
-            best = max(best, verifier(T_h).footprint_fitness)
-    return best
+    best = best_refined_rival([T_h for T_h, _ in place.rivals], verifier, pose_cfg,
+                              cfg.icp_distances, cfg.icp_max_iters,
+                              lambda R: bool(_far(R[:3, :3], R[:3, 3], T[:3, :3], T[:3, 3],
+                                                  place.centroid, cfg)))
+    return 0.0 if best is None else best[1]
