@@ -1,6 +1,7 @@
 """Small geometry helpers shared by the data layer, metrics and the pose estimator.
 
 Public API:
+    MAX_COORD_M                                  m, the farthest a map point may lie from its origin
     transform_points(T, points) -> (N, 3)        apply a 4x4 rigid transform
     yaw_transform(yaw, t=(0, 0, 0)) -> (4, 4)    rotation about z by `yaw` (rad) then translation
     invert_transform(T) -> (4, 4)                inverse of a rigid transform
@@ -21,6 +22,9 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     out = points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
     return out.astype(points.dtype if np.issubdtype(points.dtype, np.floating) else np.float64)
+
+
+MAX_COORD_M = 10_000.0   # maps are of buildings, not continents: grids over them must fit
 
 
 def yaw_transform(yaw: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:

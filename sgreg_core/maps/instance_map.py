@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry import MAX_COORD_M
 from ..types import InstanceMap
 
 
@@ -33,9 +34,6 @@ class InstanceMapError(ValueError):
 def labelled_mask(imap: InstanceMap) -> np.ndarray:
     ids = np.fromiter(imap.labels.keys(), dtype=np.int64, count=len(imap.labels))
     return (imap.instance > 0) & np.isin(imap.instance, ids)
-
-
-MAX_COORD_M = 10_000.0
 
 
 def validate_instance_map(imap: InstanceMap, where: str = "instance map") -> InstanceMap:

@@ -56,6 +56,19 @@ class LevelConfig:
     min_points: int = 200
     max_points: int = 8000
 
+    def __post_init__(self):
+        # no cone at all would leave up at z and report the map level, whatever its tilt
+        if not (self.cones_deg and all(0.0 < c < 90.0 for c in self.cones_deg)):
+            raise ValueError(f"level: cones_deg must be one or more angles in (0, 90) deg, "
+                             f"got {self.cones_deg!r}")
+        if not (0.0 < self.voxel < np.inf and self.neighbours >= 3
+                and 0.0 < self.max_planarity <= 1.0 / 3.0
+                and 0.0 <= self.min_tilt_deg <= self.max_tilt_deg
+                and 10 <= self.min_points <= self.max_points):
+            raise ValueError("level: voxel must be a finite distance > 0 (m), neighbours >= 3, "
+                             "max_planarity in (0, 1/3], 0 <= min_tilt_deg <= max_tilt_deg, "
+                             "10 <= min_points <= max_points")
+
 
 @dataclass
 class Levelling:
@@ -119,7 +132,9 @@ def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levell
     """Gravity of a map from its surfaces (see the module docstring)."""
     cfg = cfg or LevelConfig()
     pts = np.asarray(points, np.float64)
-    pts = pts[np.isfinite(pts).all(1)] if pts.size else pts.reshape(0, 3)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        return Levelling(ok=False, reason=f"points must have shape (N, 3), got {pts.shape}")
+    pts = pts[np.isfinite(pts).all(1)]
     vox = voxel_downsample(pts, cfg.voxel).astype(np.float64) if len(pts) else pts
     if len(vox) > cfg.max_points:
         vox = vox[np.random.default_rng(0).choice(len(vox), cfg.max_points, replace=False)]

@@ -100,6 +100,25 @@ class PoseConfig:
         check_probe(self.footprint_probe)
         if self.pair_hypotheses < 0:
             raise ValueError(f"pair_hypotheses must be >= 0, got {self.pair_hypotheses}")
+        if self.dof not in (4, 6):
+            raise ValueError(f"pose: dof must be 4 or 6, got {self.dof!r}")
+        # a zero footprint cell puts the whole map in one cell (every pose on the plan), a zero
+        # tau divides the score by zero: each of these distances must be a finite positive one
+        positive = {k: getattr(self, k) for k in ("noise_bound", "verify_tau", "footprint_cell",
+                                                   "icp_distance")}
+        positive.update({f"clique_deltas[{i}]": d for i, d in enumerate(self.clique_deltas)})
+        bad = [k for k, v in positive.items() if not 0.0 < v < np.inf]
+        bad += [k for k in ("nms_radius", "verify_voxel") if not 0.0 <= getattr(self, k) < np.inf]
+        if bad:
+            raise ValueError(f"pose: {bad} must be finite distances (m), > 0 (nms_radius and "
+                             f"verify_voxel: >= 0, 0 turning them off)")
+        if not self.gnc_inlier_gate >= 0.0:   # above 1 (guided: inf): the pyramid always runs
+            raise ValueError(f"pose: gnc_inlier_gate must be >= 0, got {self.gnc_inlier_gate}")
+        if min(self.min_correspondences, self.verify_max_points, self.max_clique_correspondences) < 3 \
+                or self.max_exact_vertices < 1 or self.icp_max_iters < 0:
+            raise ValueError("pose: min_correspondences, verify_max_points and "
+                             "max_clique_correspondences must be >= 3, max_exact_vertices >= 1, "
+                             "icp_max_iters >= 0")
 
 
 @dataclass
@@ -185,9 +204,22 @@ def as_points(a) -> np.ndarray | None:
     return a if a.ndim == 2 and a.shape[1] == 3 else None
 
 
+def _is_pose(T) -> bool:
+    """T is a finite 4x4 array."""
+    try:
+        T = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return T.shape == (4, 4) and bool(np.isfinite(T).all())
+
+
 def _per_corr(a, n: int) -> np.ndarray | None:
-    """(n,) float64 array from a scalar or per-correspondence array, None if misshapen."""
-    a = np.asarray(a, dtype=np.float64)
+    """(n,) float64 array from a scalar or per-correspondence array, None if misshapen or not
+    numbers."""
+    try:
+        a = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
     if a.ndim == 0:
         return np.full(n, float(a))
     return a if a.shape == (n,) else None
@@ -411,7 +443,8 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         return result
     s, r, wk, bk, gk = src[keep], ref[keep], w[keep], b[keep], g[keep]
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
-    candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, hypotheses)
+    known = [np.asarray(T, np.float64) for T in hypotheses or [] if _is_pose(T)]   # malformed: none
+    candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, known)
     if not candidates:
         result.timing_ms = clock.done()
         return result

@@ -35,12 +35,16 @@ import numpy as np
 from .estimator import (PoseConfig, PoseResult, best_refined_rival, cloud_verifier, far_apart,
                         refine_icp_coarse_to_fine, spread_of)
 from .solvers import residuals
-from .verdict import REASONS, Evidence, VerdictConfig
+from .verdict import REASONS, Evidence, VerdictConfig, finite_or_zero
 from .verify import ReferenceCloud, voxel_downsample
 
 # what a dense estimate can be refused for (the estimator's reason before the verdict's); a
 # near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
 REFUSALS = ("too_few_correspondences",) + tuple(r for r in REASONS[1:] if r != "ambiguous")
+SURFACE_NEIGHBOURS = 4   # other voxels within the solver's normal radius that make a surface voxel
+# the least GeometricConfig.min_surface: of 470 fuzzed clouds (scattered points, blobs, lines,
+# patches, parts of a room) the solver crashed on 11, every one without a single surface voxel
+MIN_SURFACE = 50
 
 
 @dataclass
@@ -51,6 +55,11 @@ class GeometricConfig:
                        pose of more training-room pairs than 0.05 on the node points a dense
                        message carries, in a third of the time.
     min_points:        source and reference points the solver needs.
+    min_surface:       voxels (of `voxel`) on each side with at least SURFACE_NEIGHBOURS others
+                       within the solver's normal radius (3 voxels): surface its features can
+                       describe. On a cloud without any (a few voxels, or hundreds of scattered
+                       points) the solver crashes the whole process, a segfault that nothing
+                       can catch; every map a robot registers has thousands.
     min_voxels:        occupied voxels (of `voxel`) the source needs: the surface the features
                        describe. The node points of a whole view of a training-room pair fill
                        1700-10000; a dense message of a live map carries a sparse sample of its
@@ -71,6 +80,7 @@ class GeometricConfig:
     enabled: bool = True
     voxel: float = 0.1
     min_points: int = 50
+    min_surface: int = 100
     min_voxels: int = 1500
     icp_distances: tuple[float, ...] = (0.25, 0.1)
     icp_max_iters: int = 15
@@ -86,10 +96,12 @@ class GeometricConfig:
         if bad:
             raise ValueError(f"geometric.after: {bad} are not refusals a geometric pose may "
                              f"answer; choose from {list(REFUSALS)}")
-        if not (self.voxel > 0 and self.min_points >= 3 and self.min_voxels >= 0 and self.icp_max_iters >= 1
-                and self.rivals >= 0 and self.max_ambiguity > 0):
-            raise ValueError("geometric: voxel and max_ambiguity must be > 0, min_points >= 3, "
-                             "min_voxels, rivals >= 0, icp_max_iters >= 1")
+        if not (self.voxel > 0 and self.min_points >= 3 and self.min_surface >= MIN_SURFACE
+                and self.min_voxels >= 0 and self.icp_max_iters >= 1 and self.rivals >= 0
+                and self.max_ambiguity > 0):
+            raise ValueError(f"geometric: voxel and max_ambiguity must be > 0, min_points >= 3, "
+                             f"min_surface >= {MIN_SURFACE} (fewer crash the solver), min_voxels, "
+                             f"rivals >= 0, icp_max_iters >= 1")
         if not all(0.0 <= v <= 1.0 for v in (self.min_fitness, self.min_footprint_share)):
             raise ValueError("geometric: min_fitness and min_footprint_share are shares in [0, 1]")
         if not self.icp_distances or min(self.icp_distances) <= 0:
@@ -102,17 +114,21 @@ class GeometricConfig:
 
 def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
                          cfg: GeometricConfig) -> np.ndarray | None:
-    """KISS-Matcher's pose of src_cloud onto ref_points, or None when either is too small (the
-    source also by cfg.min_voxels) or the solver finds no valid solution. Not bit-for-bit
-    repeatable: the solver's threads may order its work differently from run to run (poses
-    1e-4 apart on a test room), which can tip a borderline pair across a gate."""
+    """KISS-Matcher's pose of src_cloud onto ref_points, or None when either is too small (too
+    few points or too little surface, the source also by cfg.min_voxels) or the solver finds no
+    valid solution. Not bit-for-bit repeatable: the solver's threads may order its work
+    differently from run to run (raw poses up to centimetres apart on a test room, the same
+    after ICP), which can tip a borderline pair across a gate."""
     import kiss_matcher  # compiled extension: imported only when a geometric pose is needed
 
     src = np.asarray(src_cloud, np.float32).reshape(-1, 3)
     ref = np.asarray(ref_points, np.float32).reshape(-1, 3)
     src, ref = src[np.isfinite(src).all(1)], ref[np.isfinite(ref).all(1)]
-    if min(src.shape[0], ref.shape[0]) < cfg.min_points \
-            or voxel_downsample(src, cfg.voxel).shape[0] < cfg.min_voxels:
+    if min(src.shape[0], ref.shape[0]) < cfg.min_points:
+        return None
+    src_vox, ref_vox = voxel_downsample(src, cfg.voxel), voxel_downsample(ref, cfg.voxel)
+    if src_vox.shape[0] < cfg.min_voxels or min(_surface(src_vox, cfg.voxel),
+                                                 _surface(ref_vox, cfg.voxel)) < cfg.min_surface:
         return None
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(cfg.voxel))
     sol = matcher.estimate(src, ref)
@@ -124,12 +140,21 @@ def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
     return T if np.isfinite(T).all() else None
 
 
+def _surface(vox: np.ndarray, voxel: float) -> int:
+    """How many of the voxel centroids vox (of `voxel`) have at least SURFACE_NEIGHBOURS others
+    within the solver's normal radius, 3 voxels: those its features can describe."""
+    from scipy.spatial import cKDTree
+
+    if vox.shape[0] <= SURFACE_NEIGHBOURS:
+        return 0
+    near = cKDTree(vox).query_ball_point(vox, 3.0 * voxel, return_length=True)
+    return int(np.count_nonzero(near > SURFACE_NEIGHBOURS))   # the count includes the voxel itself
+
+
 def geometric_confidence(ev: Evidence, cfg: GeometricConfig) -> float:
     """P(pose right | geometric evidence) from the logistic model of cfg.confidence_weights."""
-    def finite(v):
-        return float(v) if np.isfinite(v) else 0.0
-
-    x = np.array([1.0, finite(ev.fitness), finite(ev.footprint_share), min(finite(ev.ambiguity), 1.5)])
+    f = finite_or_zero
+    x = np.array([1.0, f(ev.fitness), f(ev.footprint_share), min(f(ev.ambiguity), 1.5)])
     z = float(x @ np.asarray(cfg.confidence_weights, np.float64))
     return float(1.0 / (1.0 + np.exp(-z)))
 

@@ -23,6 +23,7 @@ Public API:
     Evidence                       what the estimator measured about its winner
     judge(evidence, cfg) -> reason "ok" or the first missing piece of evidence
     confidence(evidence, cfg) -> float in [0, 1]
+    finite_or_zero(v) -> float     v, or 0 where it was not measured (NaN)
     REASONS                        every reason judge can give, in the order it checks them
 """
 from __future__ import annotations
@@ -140,12 +141,15 @@ def support(objects: int, fitness: float) -> float:
     return float(objects) * (float(fitness) if np.isfinite(fitness) else 1.0)
 
 
+def finite_or_zero(v: float) -> float:
+    """v, or 0 where it is NaN or infinite (evidence that was not measured)."""
+    return float(v) if np.isfinite(v) else 0.0
+
+
 def confidence(ev: Evidence, cfg: VerdictConfig) -> float:
     """P(pose right | evidence) from the logistic model of cfg.confidence_weights."""
-    def finite(v):
-        return float(v) if np.isfinite(v) else 0.0
-
-    x = np.array([1.0, np.log1p(ev.objects), finite(ev.fitness), finite(ev.footprint_share),
-                  min(finite(ev.ambiguity), 1.5), finite(ev.inlier_ratio)])
+    f = finite_or_zero
+    x = np.array([1.0, np.log1p(ev.objects), f(ev.fitness), f(ev.footprint_share),
+                  min(f(ev.ambiguity), 1.5), f(ev.inlier_ratio)])
     w = np.asarray(cfg.confidence_weights, np.float64)
     return float(1.0 / (1.0 + np.exp(-float(x @ w))))

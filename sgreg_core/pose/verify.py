@@ -58,9 +58,10 @@ NORMAL_NEIGHBOURS = 10   # points per local plane fit of a normal
 
 def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
     """Centroid of the points in each occupied voxel (geometry.voxel_downsample, float64);
-    non-finite points are dropped first."""
+    non-finite points, and points farther out than any map's (geometry.MAX_COORD_M), are
+    dropped first."""
     pts = np.asarray(pts, np.float64).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(1)]
+    pts = pts[(np.abs(pts) <= geometry.MAX_COORD_M).all(1)]   # NaN compares False: dropped too
     if voxel <= 0 or pts.shape[0] == 0:
         return pts
     return geometry.voxel_downsample(pts, voxel).astype(np.float64)
@@ -81,15 +82,22 @@ def check_rim(rim) -> int:
     return int(rim)
 
 
+MAX_FOOTPRINT_CELLS = 1 << 22   # 2048 x 2048 cells: 410 m square at 0.2 m, 4 MB, ~0.1 s
+
+
 class Footprint:
     """The floor plan a cloud covers: occupied cells of a horizontal grid, gaps between
     nearby cells closed, enclosed holes (the free middle of a room) filled, one cell of
-    margin."""
+    margin. The grid spans the cloud, but at most MAX_FOOTPRINT_CELLS: a cloud wider than
+    that (a stray point kilometres out: the grid's cost grows with the square of the span)
+    keeps the cells of its central 99.8 % per axis, and at most that many about its median
+    cell; points outside lie off the plan."""
 
     def __init__(self, pts: np.ndarray, cell: float = 0.2):
         self.cell = float(cell)
         ij = np.floor(pts[:, :2] / self.cell).astype(np.int64)
         pad = 4  # room for the closing and the margin at the border
+        ij = _within_budget(ij, pad)
         self.origin = ij.min(0) - pad
         ij -= self.origin
         grid = np.zeros(ij.max(0) + 1 + pad, bool)
@@ -121,6 +129,23 @@ class Footprint:
         out = np.zeros(pts.shape[0], bool)
         out[inside] = grid[ij[inside, 0], ij[inside, 1]]
         return out
+
+
+def _within_budget(ij: np.ndarray, pad: int) -> np.ndarray:
+    """The cells ij (N, 2) whose grid, with `pad` cells on each side, fits MAX_FOOTPRINT_CELLS
+    (see Footprint); all of them when it does already."""
+    def cells(lo, hi):   # in floats: spans of 1e12 m would overflow int64
+        return float(np.prod((hi - lo + 1 + 2 * pad).astype(np.float64)))
+
+    lo, hi = ij.min(0), ij.max(0)
+    if cells(lo, hi) <= MAX_FOOTPRINT_CELLS:
+        return ij
+    lo, hi = np.floor(np.percentile(ij, 0.1, axis=0)), np.ceil(np.percentile(ij, 99.9, axis=0))
+    if cells(lo, hi) > MAX_FOOTPRINT_CELLS:
+        half = (int(np.sqrt(MAX_FOOTPRINT_CELLS)) - 1) // 2 - pad
+        mid = np.median(ij, axis=0).round()
+        lo, hi = np.maximum(lo, mid - half), np.minimum(hi, mid + half)
+    return ij[((ij >= lo) & (ij <= hi)).all(1)]
 
 
 class ReferenceCloud:
@@ -175,7 +200,7 @@ class CloudVerifier:
         self.valid = self.scored.shape[0] >= 3 and self.reference.valid
 
     def __call__(self, T: np.ndarray) -> Verification:
-        if not self.valid:
+        if not self.valid or not np.isfinite(T).all():
             return FAILED
         ref = self.reference
         moved = apply_T(T, self.scored)

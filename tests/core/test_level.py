@@ -49,6 +49,22 @@ def test_what_cannot_be_levelled_is_left_as_it_is(scene):
     assert not estimate_level(junk).ok
 
 
+def test_points_that_are_not_points_are_refused_with_the_reason():
+    for bad in (np.zeros((100, 2)), np.zeros(3), np.zeros((10, 4))):
+        lev = estimate_level(bad)
+        assert not lev.ok and "shape (N, 3)" in lev.reason and np.allclose(lev.R, np.eye(3))
+
+
+@pytest.mark.parametrize("bad", [{"cones_deg": ()}, {"cones_deg": (35.0, 0.0)}, {"voxel": 0.0},
+                                 {"neighbours": 2}, {"max_planarity": 0.5},
+                                 {"min_tilt_deg": 3.0, "max_tilt_deg": 2.0},
+                                 {"min_points": 9000}])
+def test_level_config_refuses_what_would_report_any_map_level(bad):
+    """With no cone at all, up stayed z and every map was reported level, however tilted."""
+    with pytest.raises(ValueError, match="level"):
+        LevelConfig(**bad)
+
+
 def test_rotation_between():
     rng = np.random.default_rng(1)
     for _ in range(5):

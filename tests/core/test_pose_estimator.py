@@ -318,6 +318,48 @@ def test_weights_and_noise_bounds_are_validated_and_used():
     assert res.success and pose_error(res.T, T)[0] < 0.05
 
 
+def test_malformed_weights_bounds_and_hypotheses_are_refused_not_raised():
+    rng = np.random.default_rng(17)
+    T = random_room_pose(rng)
+    src, ref, _ = correspondences(rng, 300, 0.5, T)
+    assert estimate_pose(src, ref, weights="abc").reason == "invalid_input"
+    assert estimate_pose(src, ref, noise_bounds={"a": 1}).reason == "invalid_input"
+    # a broken earlier pass is no candidate: the estimate is made from scratch
+    bad = [np.full((4, 4), np.nan), np.eye(3), "pose"]
+    res = estimate_pose(src, ref, hypotheses=bad)
+    assert res.success and pose_error(res.T, T)[0] < 0.05
+
+
+@pytest.mark.parametrize("bad", [{"footprint_cell": 0.0}, {"footprint_cell": float("nan")},
+                                 {"verify_tau": 0.0}, {"noise_bound": -0.1},
+                                 {"icp_distance": float("inf")}, {"verify_voxel": -0.05},
+                                 {"clique_deltas": (0.1, 0.0)}, {"dof": 5},
+                                 {"gnc_inlier_gate": float("nan")}, {"verify_max_points": 2}])
+def test_pose_config_refuses_distances_that_would_turn_a_check_off(bad):
+    """A zero footprint cell puts a whole map in one cell: a source 100 m away would land on
+    the footprint."""
+    with pytest.raises(ValueError, match="pose"):
+        PoseConfig(**bad)
+    PoseConfig(nms_radius=0.0, verify_voxel=0.0, gnc_inlier_gate=np.inf)   # off, and always
+
+
+def test_a_stray_point_far_out_neither_slows_the_footprint_nor_leaves_the_plan():
+    """The footprint grid spans the cloud: one point 3 km out made it 15000 x 15000 cells (27 s);
+    one beyond any map (geometry.MAX_COORD_M) overflowed it."""
+    import time
+
+    room = box_room(np.random.default_rng(18))
+    clean = ReferenceCloud(room)
+    for far in (3e3, 9e3, 1e12, 1e39):
+        t0 = time.perf_counter()
+        ref = ReferenceCloud(np.r_[room, [[far, far, 0.0]]])
+        assert time.perf_counter() - t0 < 5.0 and ref.valid
+        assert ref.footprint.grid.shape == clean.footprint.grid.shape
+        assert ref.footprint.contains(room).all()
+        ver = CloudVerifier(room, ref)(np.eye(4))
+        assert ver.footprint_fitness == CloudVerifier(room, clean)(np.eye(4)).footprint_fitness
+
+
 def test_bench_pose_cli(tmp_path, capsys):
     out = tmp_path / "pose.json"
     assert main(["bench-pose", "--n", "200", "--outliers", "0.5", "0.9", "--trials", "2",

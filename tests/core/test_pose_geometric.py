@@ -66,7 +66,7 @@ def test_a_sparse_source_is_not_handed_to_the_solver(monkeypatch):
     import kiss_matcher
 
     room, ref_room, *_ = garbled_pair()
-    sparse = room[np.random.default_rng(0).choice(len(room), 400, replace=False)]
+    sparse = room[np.random.default_rng(0).choice(len(room), 1000, replace=False)]   # 953 voxels
 
     def called(*args, **kwargs):
         raise RuntimeError("solver called")
@@ -75,6 +75,37 @@ def test_a_sparse_source_is_not_handed_to_the_solver(monkeypatch):
     assert geometric_hypothesis(sparse, ref_room, GeometricConfig()) is None
     with pytest.raises(RuntimeError, match="solver called"):
         geometric_hypothesis(sparse, ref_room, GeometricConfig(min_voxels=0))
+
+
+CRASHERS = """
+import sys, numpy as np
+sys.path.insert(0, {here!r})
+from test_pose_geometric import garbled_pair
+from sgreg_core.pose.geometric import GeometricConfig, geometric_hypothesis
+room = garbled_pair()[0]
+rng = np.random.default_rng(0)
+one_voxel = np.ones((60, 3))
+scattered = rng.random((200, 3)) * 5.0      # points 1 m apart: no surface around any of them
+two_blobs = np.r_[np.zeros((30, 3)), np.full((30, 3), 5.0)] + rng.random((60, 3)) * 0.01
+for cloud in (one_voxel, scattered, two_blobs):
+    for src, ref in ((room, cloud), (cloud, room)):
+        print(geometric_hypothesis(src, ref, GeometricConfig(min_voxels=0)), flush=True)
+"""
+
+
+def test_clouds_with_too_little_surface_never_reach_the_solver():
+    """KISS-Matcher segfaults (the process ends, nothing to catch) on clouds of a few voxels or
+    of scattered points, on either side: run in a process of its own, every one is refused."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = CRASHERS.format(here=str(Path(__file__).parent))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, f"the solver crashed (exit {out.returncode}): {out.stderr[-500:]}"
+    assert out.stdout.split() == ["None"] * 6
+    with pytest.raises(ValueError, match="min_surface"):
+        GeometricConfig(min_surface=0)
 
 
 def test_a_pair_without_one_right_node_match_is_registered_from_geometry():
