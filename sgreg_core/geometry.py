@@ -5,6 +5,7 @@ Public API:
     transform_points(T, points) -> (N, 3)        apply a 4x4 rigid transform
     yaw_transform(yaw, t=(0, 0, 0)) -> (4, 4)    rotation about z by `yaw` (rad) then translation
     invert_transform(T) -> (4, 4)                inverse of a rigid transform
+    is_rotation(R) / is_rigid(T) -> bool         a finite 3x3 rotation (det +1) / 4x4 rigid transform
     voxel_coords(points, voxel) -> (N, 3) int64  integer voxel coordinates floor(p / voxel)
     pack_keys(columns) -> (N,) int64             one int64 key per row of integer columns
     voxel_downsample(points, voxel) -> (M, 3)    centroid of the points in each occupied voxel
@@ -43,6 +44,27 @@ def invert_transform(T: np.ndarray) -> np.ndarray:
     inv[:3, :3] = T[:3, :3].T
     inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
     return inv
+
+
+def is_rotation(R, tol: float = 1e-4) -> bool:
+    """R is a finite 3x3 rotation within tol: orthonormal with determinant +1 (a reflection,
+    orthonormal too, is none)."""
+    try:
+        R = np.asarray(R, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return (R.shape == (3, 3) and bool(np.isfinite(R).all())
+            and np.allclose(R @ R.T, np.eye(3), atol=tol) and np.linalg.det(R) > 0)
+
+
+def is_rigid(T, tol: float = 1e-4) -> bool:
+    """T is a finite 4x4 rigid transform within tol: a rotation, a translation, (0, 0, 0, 1)."""
+    try:
+        T = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return (T.shape == (4, 4) and bool(np.isfinite(T).all()) and is_rotation(T[:3, :3], tol)
+            and np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=tol))
 
 
 def voxel_coords(points: np.ndarray, voxel: float) -> np.ndarray:

@@ -17,6 +17,7 @@ from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 from tf2_msgs.msg import TFMessage
 
+from sgreg_core.maps.level import MAX_TILT_DEG
 from sgreg_core.net.model import NodeFeatures
 from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMessage
 from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
@@ -159,19 +160,16 @@ def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
                         extents=_f32(msg.extents, n, "extents"), level=_level(msg.level))
 
 
-MAX_LEVEL_TILT_DEG = 30.0
-
-
 def _level(q) -> np.ndarray:
     """The sender's levelling rotation from its quaternion: a unit quaternion that tilts by at
-    most MAX_LEVEL_TILT_DEG (levelling never turns a map about z, and a map is never on its
+    most MAX_TILT_DEG (levelling never turns a map about z, and a map is never on its
     side)."""
     v = np.array([q.x, q.y, q.z, q.w], np.float64)
     if not np.isfinite(v).all() or abs(np.linalg.norm(v) - 1.0) > 1e-3:
         raise ConversionError(f"level is not a unit quaternion: {v.tolist()}")
     R = Rotation.from_quat(v).as_matrix()
-    if np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))) > MAX_LEVEL_TILT_DEG:
-        raise ConversionError(f"level tilts the map by more than {MAX_LEVEL_TILT_DEG:g} deg")
+    if np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))) > MAX_TILT_DEG:
+        raise ConversionError(f"level tilts the map by more than {MAX_TILT_DEG:g} deg")
     return R
 
 

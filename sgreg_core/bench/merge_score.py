@@ -46,7 +46,9 @@ def merge_report(records, T_scene_map: dict, poses: dict | None = None, step_s: 
         nonlocal i
         while i < len(records) and stamp[i] <= t:
             r = records[i]
-            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, r.confidence, seconds_to_ns(stamp[i]))
+            # a result that states no confidence (older bags) weighs as a sure one
+            confidence = r.confidence if np.isfinite(r.confidence) else 1.0
+            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, confidence, seconds_to_ns(stamp[i]))
             i += 1
         merger.update()
 

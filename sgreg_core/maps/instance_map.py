@@ -55,8 +55,11 @@ def validate_instance_map(imap: InstanceMap, where: str = "instance map") -> Ins
         raise InstanceMapError(f"{where}: instance must have shape ({len(pts)},), got {inst.shape}")
     if not np.issubdtype(inst.dtype, np.integer):
         raise InstanceMapError(f"{where}: instance ids must be integers, got dtype {inst.dtype}")
-    if inst.size and (inst.max() > np.iinfo(np.int32).max or inst.min() < np.iinfo(np.int32).min):
+    if inst.size and (inst.max() > _INT32[1] or inst.min() < _INT32[0]):
         raise InstanceMapError(f"{where}: instance ids do not fit in int32")
+    if any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not _INT32[0] <= k <= _INT32[1]
+           for k in imap.labels):
+        raise InstanceMapError(f"{where}: label ids must be int32 instance ids")
     colors = imap.colors
     if colors is not None:
         colors = np.asarray(colors)
@@ -100,6 +103,17 @@ def _load_npy(path: Path) -> np.ndarray:
         raise InstanceMapError(f"{path}: not a readable .npy file ({type(exc).__name__})") from None
 
 
+_INT32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
+
+
+def _finite(x: int | float) -> bool:
+    """A finite number (an int too large for a float is none)."""
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
 def _load_instances_json(path: Path) -> tuple[dict[int, str], dict[int, float]]:
     if not path.is_file():
         raise InstanceMapError(f"{path}: missing file")
@@ -107,6 +121,8 @@ def _load_instances_json(path: Path) -> tuple[dict[int, str], dict[int, float]]:
         entries = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InstanceMapError(f"{path}: malformed JSON ({exc})") from None
+    except RecursionError:
+        raise InstanceMapError(f"{path}: malformed JSON (nested too deep)") from None
     if not isinstance(entries, list):
         raise InstanceMapError(f"{path}: expected a list of {{id, label, score?}}, got {type(entries).__name__}")
     labels: dict[int, str] = {}
@@ -117,9 +133,11 @@ def _load_instances_json(path: Path) -> tuple[dict[int, str], dict[int, float]]:
         iid, label, score = e["id"], e["label"], e.get("score", 1.0)
         if isinstance(iid, bool) or not isinstance(iid, int):
             raise InstanceMapError(f"{path}: entry {n} has a non-integer id {iid!r}")
+        if not _INT32[0] <= iid <= _INT32[1]:
+            raise InstanceMapError(f"{path}: entry {n} has an id {iid} beyond int32")
         if not isinstance(label, str) or not label.strip():
             raise InstanceMapError(f"{path}: entry {n} (id {iid}) has an empty or non-text label")
-        if isinstance(score, bool) or not isinstance(score, (int, float)) or not math.isfinite(score):
+        if isinstance(score, bool) or not isinstance(score, (int, float)) or not _finite(score):
             raise InstanceMapError(f"{path}: entry {n} (id {iid}) has a non-numeric score {score!r}")
         if iid in labels:
             raise InstanceMapError(f"{path}: id {iid} appears twice")

@@ -13,6 +13,7 @@ vertical). Labels are not needed (and may be wrong).
 
 Public API:
     LevelConfig
+    MAX_TILT_DEG                the most any map is levelled by (a peer's levelling beyond it is refused)
     Levelling                   R (3x3, map -> levelled), up (gravity's opposite in the map
                                 frame), tilt_deg, ok, reason; .T (4x4); .apply(points)
     estimate_level(points, cfg) -> Levelling
@@ -27,6 +28,9 @@ import numpy as np
 
 from ..geometry import local_planes, voxel_downsample
 from ..types import InstanceMap
+
+
+MAX_TILT_DEG = 30.0   # no map is levelled further: it would be on its side (LevelConfig.max_tilt_deg)
 
 
 @dataclass
@@ -63,11 +67,11 @@ class LevelConfig:
                              f"got {self.cones_deg!r}")
         if not (0.0 < self.voxel < np.inf and self.neighbours >= 3
                 and 0.0 < self.max_planarity <= 1.0 / 3.0
-                and 0.0 <= self.min_tilt_deg <= self.max_tilt_deg
+                and 0.0 <= self.min_tilt_deg <= self.max_tilt_deg <= MAX_TILT_DEG
                 and 10 <= self.min_points <= self.max_points):
-            raise ValueError("level: voxel must be a finite distance > 0 (m), neighbours >= 3, "
-                             "max_planarity in (0, 1/3], 0 <= min_tilt_deg <= max_tilt_deg, "
-                             "10 <= min_points <= max_points")
+            raise ValueError(f"level: voxel must be a finite distance > 0 (m), neighbours >= 3, "
+                             f"max_planarity in (0, 1/3], 0 <= min_tilt_deg <= max_tilt_deg <= "
+                             f"{MAX_TILT_DEG:g}, 10 <= min_points <= max_points")
 
 
 @dataclass

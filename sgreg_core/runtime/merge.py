@@ -56,7 +56,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import param
-from ..geometry import invert_transform
+from ..geometry import invert_transform, is_rigid, is_rotation
 from .clock import stamp_ns as _stamp_ns
 
 
@@ -334,15 +334,21 @@ class Links:
         self._heard_ns: dict[tuple[str, str], int] = {}
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
-             link_state: str, confidence: float, stamp_ns: int) -> None:
+             link_state: str, confidence: float, stamp_ns: int) -> bool:
+        """False (nothing taken) for a link to keep whose transform is not rigid or whose
+        confidence is not a number: a NaN would spread through every pose averaged with it."""
+        keep = verified or reason == "disputed_by_cycles"
+        if keep and not (is_rigid(T) and np.isfinite(confidence)):
+            return False
         self.agents |= {agent, peer}
         stamp_ns = _stamp_ns(stamp_ns)
         self._heard_ns[(agent, peer)] = stamp_ns
-        if verified or reason == "disputed_by_cycles":
+        if keep:
             self._links[(agent, peer)] = Link(agent, peer, np.asarray(T, np.float64), float(confidence),
                                               stamp_ns)
         elif link_state != "confirmed":
             self._links.pop((agent, peer), None)
+        return True
 
     def current(self, max_age_s: float = 0.0) -> list[Link]:
         """The links, without those made from maps more than max_age_s older than the newest
@@ -372,8 +378,12 @@ class Merger:
         self.levels: dict[str, np.ndarray] = {}
         self.result = merge([], [agent], cfg)
 
-    def set_level(self, agent: str, R: np.ndarray) -> None:
+    def set_level(self, agent: str, R: np.ndarray) -> bool:
+        """False (the agent's levelling unchanged) for R that is not a rotation."""
+        if not is_rotation(R):
+            return False
         self.levels[agent] = np.asarray(R, np.float64)
+        return True
 
     def _level_T(self, agent: str) -> np.ndarray:
         T = np.eye(4)
@@ -381,10 +391,11 @@ class Merger:
         return T
 
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
-             link_state: str, confidence: float, stamp_ns: int) -> None:
+             link_state: str, confidence: float, stamp_ns: int) -> bool:
+        """Links.take: False when refused."""
         # as float32, what the other agents' mergers get over the wire: the same order for all
         confidence = float(np.float32(confidence))
-        self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp_ns)
+        return self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp_ns)
 
     def _levelled(self, link: Link) -> Link:
         """The link between the two agents' levelled frames, with the current levellings."""

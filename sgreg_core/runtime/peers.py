@@ -60,10 +60,10 @@ from typing import Callable
 import numpy as np
 
 from ..config import param
-from ..geometry import invert_transform
+from ..geometry import invert_transform, is_rigid, is_rotation
 from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
-from ..maps.level import Levelling
+from ..maps.level import MAX_TILT_DEG, Levelling
 from ..pipeline import Correspondences, PipelineConfig, Registration, register_features, to_map_frames
 from .agent import AgentCore
 from .messages import DenseRequestMessage, Estimate, GraphMessage
@@ -338,6 +338,12 @@ class PeerLink:
         return "confirmed" if self.confirmed else "candidate" if self.candidate else "none"
 
 
+def _numeric(a, ndim: int | None, kinds: str = "fiu") -> bool:
+    """a is a numpy array of ndim dimensions (None: any) whose dtype kind is among kinds (f:
+    float, i / u: integers)."""
+    return isinstance(a, np.ndarray) and ndim in (None, a.ndim) and a.dtype.kind in kinds
+
+
 class Peers:
     """All peers of one agent: feed take_own_map / on_coarse / on_dense / on_tick; read links
     and counters."""
@@ -410,11 +416,9 @@ class Peers:
         if peer in self._witnesses and not held:
             del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
-        if not passed:
+        if not passed or not is_rigid(T_peer_agent):
             return
         T = np.asarray(T_peer_agent, np.float64)
-        if T.shape != (4, 4) or not np.isfinite(T).all():
-            return
         if peer not in self._witnesses and len(self._witnesses) >= self.cfg.max_peers:
             del self._witnesses[min(self._witnesses, key=lambda p: max(t for _, t in self._witnesses[p].values()))]
         kind = "confirmed" if verified else "dense"
@@ -647,9 +651,19 @@ class Peers:
         if msg.weights_id != self.agent.weights_id:
             return ("rejected_weights", f"features from weights {msg.weights_id!r}, this agent "
                     f"runs {self.agent.weights_id!r}")
+        dense = msg.points is not None
+        # what the ROS layer decodes always has these types; a message made otherwise is checked
+        # here too, before any of it can reach the link's state
+        if not (_numeric(msg.nodes.node_ids, 1, "iu") and _numeric(msg.nodes.descriptor, None)
+                and _numeric(msg.nodes.centers, 2) and _numeric(msg.extents, 2)
+                and (not dense or (_numeric(msg.points, 2) and _numeric(msg.point_node, 1, "iu")))):
+            return "malformed_message", "node ids, features, centers, extents or points are not numeric arrays"
         n = msg.num_nodes
-        if n > self.cfg.max_nodes or (msg.points is not None and msg.points.shape[0] > self.cfg.max_points):
-            return "oversized_message", f"{n} nodes / points over max_nodes={self.cfg.max_nodes}, max_points={self.cfg.max_points}"
+        k = self.model.cfg.shape.points_per_node    # what a peer of the same weights samples per node
+        if n > self.cfg.max_nodes or (dense and msg.points.shape[0] > min(self.cfg.max_points, n * k)):
+            return ("oversized_message", f"{n} nodes / {msg.points.shape[0] if dense else 0} points "
+                    f"over max_nodes={self.cfg.max_nodes}, max_points={self.cfg.max_points} or "
+                    f"{k} per node")
         desc, centers = msg.nodes.descriptor, msg.nodes.centers
         if desc.ndim != 2:
             return "bad_feature_size", f"features {desc.shape}, expected ({n}, dim)"
@@ -658,17 +672,16 @@ class Peers:
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
         if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
             return "bad_nodes", "extents do not match the nodes, or a node id repeats"
-        level = np.asarray(msg.level)
-        if level.shape != (3, 3) or not np.isfinite(level).all() \
-                or not np.allclose(level @ level.T, np.eye(3), atol=1e-4):
-            return "bad_level", "the levelling is not a rotation"
+        if not is_rotation(msg.level) or np.degrees(np.arccos(np.clip(
+                np.asarray(msg.level, np.float64)[2, 2], -1.0, 1.0))) > MAX_TILT_DEG:
+            return "bad_level", f"the levelling is not a rotation that tilts by {MAX_TILT_DEG:g} deg at most"
         arrays = [desc, centers, msg.extents] + ([msg.points] if msg.points is not None else [])
         if not all(np.isfinite(a).all() for a in arrays):
             return "invalid_values", "NaN or inf in features, centers, extents or points"
         if n < self.agent.cfg.min_nodes:
             return "too_few_nodes", f"{n} nodes (min_nodes={self.agent.cfg.min_nodes})"
-        if msg.points is not None:
-            if msg.point_node is None or msg.point_node.shape[0] != msg.points.shape[0] \
+        if dense:
+            if msg.points.shape[1] != 3 or msg.point_node.shape[0] != msg.points.shape[0] \
                     or (msg.point_node.size and (msg.point_node.min() < 0 or msg.point_node.max() >= n)):
                 return "bad_points", "points name nodes that are not in the message"
         return None

@@ -72,6 +72,10 @@ def _corrupt(tmp_path, fn):
     (lambda d: (d / "instances.json").write_text('[{"id": 9, "label": "a"}]'), "no labelled point"),
     (lambda d: np.save(d / "points.npy", np.zeros((0, 3), np.float32)), "instance.npy"),
     (lambda d: (d / "points.npy").write_bytes(b"garbage"), "not a readable"),
+    (lambda d: (d / "instances.json").write_text('[{"id": 9223372036854775808, "label": "a"}]'), "beyond int32"),
+    (lambda d: (d / "instances.json").write_text('[{"id": 1, "label": "a", "score": 1' + "0" * 400 + '}]'),
+     "non-numeric score"),
+    (lambda d: (d / "instances.json").write_text("[" * 100000 + "]" * 100000), "nested too deep"),
 ])
 def test_malformed_inputs(tmp_path, fn, needle):
     assert needle in _corrupt(tmp_path, fn)

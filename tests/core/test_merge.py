@@ -254,3 +254,20 @@ def test_peers_placed_through_a_triangle_are_placed_by_others():
     m.take("a", "c", true_link("a", "c").T, True, "ok", "confirmed", 0.9, 3 * S)
     m.update()
     assert m.placed_by_others() == {"b", "c"}
+
+
+def test_a_link_that_is_no_rigid_transform_or_has_no_confidence_is_not_taken():
+    """A NaN transform or confidence attached both agents with NaN poses (every pose averaged
+    with it); a 3x3 "transform" or levelling raised."""
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    good = true_link("a", "b")
+    assert m.take("a", "b", good.T, True, "ok", "confirmed", 0.9, 1 * S)
+    assert not m.take("b", "c", np.full((4, 4), np.nan), True, "ok", "confirmed", 0.9, 1 * S)
+    assert not m.take("b", "c", true_link("b", "c").T, True, "ok", "confirmed", float("nan"), 1 * S)
+    assert not m.take("b", "c", np.eye(3), True, "ok", "confirmed", 0.9, 1 * S)
+    assert not m.set_level("b", np.eye(4)) and not m.set_level("b", np.diag([1.0, 1.0, -1.0]))
+    m.update()
+    assert set(m.result.poses) == {"a", "b"} and "c" not in m.result.attached
+    assert all(np.isfinite(T).all() for T in m.result.poses.values())

@@ -638,6 +638,46 @@ def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, coun
     assert logs and "refused" in logs[0]
 
 
+@pytest.mark.parametrize("corrupt,counter", [
+    (lambda m: setattr(m, "level", np.diag([1.0, 1.0, -1.0])), "bad_level"),     # a reflection
+    (lambda m: setattr(m, "level", -np.eye(3)), "bad_level"),
+    (lambda m: setattr(m, "level", np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])), "bad_level"),  # on its side
+    (lambda m: setattr(m, "level", [[1.0, 0.0], [0.0, 1.0, 0.0]]), "bad_level"),  # ragged
+    (lambda m: setattr(m, "extents", None), "malformed_message"),
+    (lambda m: setattr(m, "nodes", replace(m.nodes, node_ids=m.nodes.node_ids[:, None])), "malformed_message"),
+    (lambda m: setattr(m, "nodes", replace(m.nodes, centers=m.nodes.centers.astype(object))), "malformed_message"),
+])
+def test_coarse_messages_the_ros_layer_could_not_make_are_refused_too(model, graphs, corrupt, counter):
+    """A reflection as levelling came out as a verified transform with det -1; wrong types or
+    ranks raised in the middle of an estimate."""
+    a, b, reg, _ = make_agents(model, graphs)
+    msg = b.coarse_message(1)
+    corrupt(msg)
+    assert reg.on_coarse(msg, now=0.0) == (None, None)
+    assert reg.counters[counter] == 1
+    assert "b" not in reg.links or reg.links["b"].coarse is None
+
+
+@pytest.mark.parametrize("corrupt,counter", [
+    (lambda m: setattr(m, "point_node", m.point_node.astype(np.float64)), "malformed_message"),
+    (lambda m: setattr(m, "points", m.points[:, :2].copy()), "bad_points"),
+    (lambda m: (setattr(m, "points", np.repeat(m.points, 40, axis=0)),
+                setattr(m, "point_node", np.repeat(m.point_node, 40))), "oversized_message"),
+])
+def test_bad_dense_answers_are_refused_and_asked_for_again(model, graphs, corrupt, counter):
+    """An answer that raised half-way had marked the exchange done: the link never asked for
+    the same graphs again. One with far more points than its nodes sample (40 times here; 500 000
+    points cost 17 s) is refused as oversized."""
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(search_request_interval_s=1.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    dense = b.dense_message(1, req.node_ids, "a", req.sequence)
+    corrupt(dense)
+    assert reg.on_dense(dense, now=0.5) is None
+    assert reg.counters[counter] == 1 and reg.links["b"].dense_cloud is None
+    again = reg.on_coarse(b.coarse_message(2), now=3.0)[1] or (reg.on_tick(3.1) or [None])[0]
+    assert again is not None
+
+
 def test_dense_points_naming_unknown_nodes_are_refused(model, graphs):
     a, b, reg, _ = make_agents(model, graphs)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
@@ -684,6 +724,13 @@ def test_a_malformed_graph_before_the_own_map_is_refused_not_raised(model, graph
     msg.nodes = replace(msg.nodes, descriptor=msg.nodes.descriptor[:, 0])
     assert reg.on_coarse(msg, now=0.0) == (None, None)
     assert reg.counters["bad_feature_size"] == 1
+
+
+def test_a_peer_result_that_is_not_a_rigid_transform_is_no_witness(model, graphs):
+    a, b, reg, _ = make_agents(model, graphs)
+    for T in (np.full((4, 4), np.nan), "T", [[1.0, 0.0]], np.diag([1.0, 1.0, -1.0, 1.0])):
+        reg.on_peer_result("b", T, True, "dense", "ok", "confirmed", now=0.0)
+    assert "b" not in reg._witnesses
 
 
 def test_witnesses_taken_back_leave_the_bound_on_peers_working(model, graphs):
