@@ -42,8 +42,9 @@ from .verify import ReferenceCloud, voxel_downsample
 # near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
 REFUSALS = ("too_few_correspondences",) + tuple(r for r in REASONS[1:] if r != "ambiguous")
 SURFACE_NEIGHBOURS = 4   # other voxels within the solver's normal radius that make a surface voxel
-# the least GeometricConfig.min_surface: of 501 fuzzed clouds (scattered points, blobs, lines,
-# patches, parts of a room) the solver crashed on 23, each without a single surface voxel
+# the least GeometricConfig.min_surface: scripts/fuzz_geometric_solver.py crashed the solver in
+# 13 of 500 runs (250 seeded clouds, each as source and as reference), every one on a cloud
+# without a single surface voxel
 MIN_SURFACE = 50
 
 
