@@ -143,8 +143,8 @@ def _within_budget(ij: np.ndarray, pad: int) -> np.ndarray:
     lo, hi = np.floor(np.percentile(ij, 0.1, axis=0)), np.ceil(np.percentile(ij, 99.9, axis=0))
     if cells(lo, hi) > MAX_FOOTPRINT_CELLS:
         half = (int(np.sqrt(MAX_FOOTPRINT_CELLS)) - 1) // 2 - pad
-        mid = np.median(ij, axis=0).round()
-        lo, hi = np.maximum(lo, mid - half), np.minimum(hi, mid + half)
+        mid = ij[np.abs(ij - np.median(ij, axis=0)).sum(1).argmin()]   # a cell, so some are kept
+        lo, hi = np.maximum(np.minimum(lo, mid), mid - half), np.minimum(np.maximum(hi, mid), mid + half)
     return ij[((ij >= lo) & (ij <= hi)).all(1)]
 
 
