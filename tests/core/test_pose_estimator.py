@@ -358,6 +358,9 @@ def test_a_stray_point_far_out_neither_slows_the_footprint_nor_leaves_the_plan()
         assert ref.footprint.contains(room).all()
         ver = CloudVerifier(room, ref)(np.eye(4))
         assert ver.footprint_fitness == CloudVerifier(room, clean)(np.eye(4)).footprint_fitness
+    # two rooms 7 km apart, as many points in each: the plan of one of them, not of neither
+    twin = ReferenceCloud(np.r_[room, room + [5e3, 5e3, 0.0]])
+    assert twin.footprint.contains(room).all() != twin.footprint.contains(room + [5e3, 5e3, 0.0]).all()
 
 
 def test_bench_pose_cli(tmp_path, capsys):
