@@ -21,12 +21,12 @@ ONE = """
 import sys, numpy as np
 sys.path.insert(0, {root!r})
 from scripts.fuzz_geometric_solver import cloud, room
-from sgreg_core.pose.geometric import GeometricConfig, _surface
+from sgreg_core.pose.geometric import GeometricConfig, surface_count
 from sgreg_core.pose.verify import voxel_downsample
 import kiss_matcher
 small, big = cloud({seed}).astype(np.float32), room(np.random.default_rng(0)).astype(np.float32)
 voxel = GeometricConfig().voxel
-print(_surface(voxel_downsample(small, voxel), voxel), flush=True)
+print(surface_count(voxel_downsample(small, voxel), voxel), flush=True)
 src, ref = (big, small) if {as_ref} else (small, big)
 kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel)).estimate(src, ref)
 """

@@ -1,7 +1,7 @@
 """Small geometry helpers shared by the data layer, metrics and the pose estimator.
 
 Public API:
-    MAX_COORD_M                                  m, the farthest a map point may lie from its origin
+    MAX_COORD_M                                  m, the largest coordinate of a map point
     transform_points(T, points) -> (N, 3)        apply a 4x4 rigid transform
     yaw_transform(yaw, t=(0, 0, 0)) -> (4, 4)    rotation about z by `yaw` (rad) then translation
     invert_transform(T) -> (4, 4)                inverse of a rigid transform
@@ -25,7 +25,7 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return out.astype(points.dtype if np.issubdtype(points.dtype, np.floating) else np.float64)
 
 
-MAX_COORD_M = 10_000.0   # maps are of buildings, not continents: grids over them must fit
+MAX_COORD_M = 10_000.0   # m, per coordinate: maps are of buildings, not continents
 
 
 def yaw_transform(yaw: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:

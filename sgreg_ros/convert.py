@@ -17,7 +17,8 @@ from geometry_msgs.msg import TransformStamped
 from sgreg_msgs.msg import CoarseGraph, DenseGraph, DenseRequest, InstanceMap, RegistrationResult
 from tf2_msgs.msg import TFMessage
 
-from sgreg_core.maps.level import MAX_TILT_DEG
+from sgreg_core.geometry import MAX_COORD_M
+from sgreg_core.maps.level import MAX_TILT_DEG, tilt_deg
 from sgreg_core.net.model import NodeFeatures
 from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMessage
 from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
@@ -168,7 +169,7 @@ def _level(q) -> np.ndarray:
     if not np.isfinite(v).all() or abs(np.linalg.norm(v) - 1.0) > 1e-3:
         raise ConversionError(f"level is not a unit quaternion: {v.tolist()}")
     R = Rotation.from_quat(v).as_matrix()
-    if np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))) > MAX_TILT_DEG:
+    if tilt_deg(R) > MAX_TILT_DEG:
         raise ConversionError(f"level tilts the map by more than {MAX_TILT_DEG:g} deg")
     return R
 
@@ -281,7 +282,7 @@ def result_to_msg(e: Estimate, agent_id: str, sequence: int, stamp_ns: int,
     return msg
 
 
-MAX_LINK_M = 1e4    # maps are refused beyond 10 km too (sgreg_core/maps/instance_map.py)
+MAX_LINK_M = MAX_COORD_M    # maps are refused beyond it too (sgreg_core/maps/instance_map.py)
 
 
 @dataclass

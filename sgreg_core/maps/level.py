@@ -14,6 +14,7 @@ vertical). Labels are not needed (and may be wrong).
 Public API:
     LevelConfig
     MAX_TILT_DEG                the most any map is levelled by (a peer's levelling beyond it is refused)
+    tilt_deg(R) -> float        how far a levelling rotation tilts a map
     Levelling                   R (3x3, map -> levelled), up (gravity's opposite in the map
                                 frame), tilt_deg, ok, reason; .T (4x4); .apply(points)
     estimate_level(points, cfg) -> Levelling
@@ -42,7 +43,8 @@ class LevelConfig:
                         most this share of the eigenvalue sum.
     cones_deg:          the narrowing cones: a normal within cone of `up` is horizontal
                         surface, within cone of the horizontal plane vertical surface.
-    max_tilt_deg:       a larger estimated tilt is not trusted (the map is left as it is).
+    max_tilt_deg:       a larger estimated tilt is not trusted (the map is left as it is); at
+                        most MAX_TILT_DEG (30), past which a peer's levelling is refused.
     min_tilt_deg:       a smaller one is left alone (levelling cannot do better than this).
     min_points:         voxels needed to estimate anything.
     max_points:         at most this many voxels (seeded subsample) keep the cost flat.
@@ -90,8 +92,7 @@ class Levelling:
     def from_rotation(cls, R: np.ndarray) -> "Levelling":
         """The levelling a rotation stands for (e.g. a peer's, from its message)."""
         R = np.asarray(R, np.float64)
-        up = R.T @ np.array([0.0, 0.0, 1.0])
-        return cls(R=R, up=up, tilt_deg=float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0)))))
+        return cls(R=R, up=R.T @ np.array([0.0, 0.0, 1.0]), tilt_deg=tilt_deg(R))
 
     @property
     def T(self) -> np.ndarray:
@@ -106,6 +107,12 @@ class Levelling:
     def to_json(self) -> dict:
         return {"tilt_deg": round(float(self.tilt_deg), 4), "up": [round(float(v), 6) for v in self.up],
                 "ok": bool(self.ok), "reason": self.reason}
+
+
+def tilt_deg(R: np.ndarray) -> float:
+    """How far the levelling rotation R tilts a map (deg): the angle between the map's up,
+    R^T z, and z."""
+    return float(np.degrees(np.arccos(np.clip(np.asarray(R, np.float64)[2, 2], -1.0, 1.0))))
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import param
+from ..geometry import is_rigid
 from .clique import clique_pyramid
 from .gnc import GncConfig, gnc_tls
 from .nms import nms_correspondences
@@ -42,7 +43,8 @@ class PoseConfig:
                          correspondences of two 400-node graphs took 2.1 s and 1.4 GB), and
                          a room-scale registration has a few hundred.
     min_correspondences: fewer (after NMS) gives reason "too_few_correspondences".
-    verify_voxel:        m, voxel of the clouds used for verification (and ICP).
+    verify_voxel:        m, voxel of the clouds used for verification (and ICP); 0: the clouds
+                         as they are.
     verify_tau:          m, support distance of the verification.
     footprint_cell:      m, grid cell of the reference footprint (verify.Footprint).
     footprint_rim:       cells of the footprint's outer edge the footprint fitness leaves out
@@ -202,15 +204,6 @@ def as_points(a) -> np.ndarray | None:
     except (TypeError, ValueError):
         return None
     return a if a.ndim == 2 and a.shape[1] == 3 else None
-
-
-def _is_pose(T) -> bool:
-    """T is a finite 4x4 array."""
-    try:
-        T = np.asarray(T, dtype=np.float64)
-    except (TypeError, ValueError):
-        return False
-    return T.shape == (4, 4) and bool(np.isfinite(T).all())
 
 
 def _per_corr(a, n: int) -> np.ndarray | None:
@@ -443,7 +436,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         return result
     s, r, wk, bk, gk = src[keep], ref[keep], w[keep], b[keep], g[keep]
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
-    known = [np.asarray(T, np.float64) for T in hypotheses or [] if _is_pose(T)]   # malformed: none
+    known = [np.asarray(T, np.float64) for T in hypotheses or [] if is_rigid(T)]   # malformed: none
     candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, known)
     if not candidates:
         result.timing_ms = clock.done()

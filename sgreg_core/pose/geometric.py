@@ -21,6 +21,7 @@ footprint fitness of 0.60-0.99, wrong ones at most 0.42; docs/VERDICT.md section
 Public API:
     GeometricConfig
     geometric_hypothesis(src_cloud, ref_points, cfg) -> (4, 4) T or None
+    surface_count(voxels, voxel) -> int   voxels the solver's features can describe
     geometric_confidence(evidence, cfg) -> float in [0, 1]
     judge_geometric(evidence, verdict, cfg) -> reason ("ok" or a verdict.REASONS entry)
     geometric_estimate(src_xyz, ref_xyz, groups, src_cloud, reference, rivals, pose_cfg, cfg)
@@ -127,9 +128,9 @@ def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
     src, ref = src[np.isfinite(src).all(1)], ref[np.isfinite(ref).all(1)]
     if min(src.shape[0], ref.shape[0]) < cfg.min_points:
         return None
-    src_vox, ref_vox = voxel_downsample(src, cfg.voxel), voxel_downsample(ref, cfg.voxel)
-    if src_vox.shape[0] < cfg.min_voxels or min(_surface(src_vox, cfg.voxel),
-                                                 _surface(ref_vox, cfg.voxel)) < cfg.min_surface:
+    src_vox = voxel_downsample(src, cfg.voxel)
+    if src_vox.shape[0] < cfg.min_voxels or not _has_surface(src_vox, cfg) \
+            or not _has_surface(voxel_downsample(ref, cfg.voxel), cfg):
         return None
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(cfg.voxel))
     sol = matcher.estimate(src, ref)
@@ -141,15 +142,34 @@ def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
     return T if np.isfinite(T).all() else None
 
 
-def _surface(vox: np.ndarray, voxel: float) -> int:
-    """How many of the voxel centroids vox (of `voxel`) have at least SURFACE_NEIGHBOURS others
-    within the solver's normal radius, 3 voxels: those its features can describe."""
+def _surface(tree, points: np.ndarray, voxel: float) -> np.ndarray:
+    """(N,) bool: which points (voxel centroids in tree) have SURFACE_NEIGHBOURS others within
+    the solver's normal radius, 3 voxels: surface its features can describe."""
+    return tree.query_ball_point(points, 3.0 * voxel, return_length=True) > SURFACE_NEIGHBOURS
+
+
+def surface_count(vox: np.ndarray, voxel: float) -> int:
+    """How many of the voxel centroids vox (of `voxel`) are surface (see _surface)."""
     from scipy.spatial import cKDTree
 
-    if vox.shape[0] <= SURFACE_NEIGHBOURS:
-        return 0
-    near = cKDTree(vox).query_ball_point(vox, 3.0 * voxel, return_length=True)
-    return int(np.count_nonzero(near > SURFACE_NEIGHBOURS))   # the count includes the voxel itself
+    return int(_surface(cKDTree(vox), vox, voxel).sum()) if vox.shape[0] else 0
+
+
+def _has_surface(vox: np.ndarray, cfg: GeometricConfig) -> bool:
+    """Whether at least cfg.min_surface of the voxel centroids vox (of cfg.voxel) are surface.
+    Voxels are looked at in a seeded order, a few times min_surface at a time, until enough
+    are found: a map of half a million voxels costs one KD-tree, not a search about each."""
+    from scipy.spatial import cKDTree
+
+    if vox.shape[0] < cfg.min_surface:
+        return False
+    tree, order = cKDTree(vox), np.random.default_rng(0).permutation(vox.shape[0])
+    found, chunk = 0, 4 * cfg.min_surface
+    for start in range(0, order.size, chunk):
+        found += int(_surface(tree, vox[order[start:start + chunk]], cfg.voxel).sum())
+        if found >= cfg.min_surface:
+            return True
+    return False
 
 
 def geometric_confidence(ev: Evidence, cfg: GeometricConfig) -> float:

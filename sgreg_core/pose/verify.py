@@ -58,10 +58,10 @@ NORMAL_NEIGHBOURS = 10   # points per local plane fit of a normal
 
 def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
     """Centroid of the points in each occupied voxel (geometry.voxel_downsample, float64);
-    non-finite points, and points farther out than any map's (geometry.MAX_COORD_M), are
-    dropped first."""
+    non-finite points, and points with a coordinate beyond FAR_M (no map's, levelled or posed:
+    their voxels would overflow), are dropped first."""
     pts = np.asarray(pts, np.float64).reshape(-1, 3)
-    pts = pts[(np.abs(pts) <= geometry.MAX_COORD_M).all(1)]   # NaN compares False: dropped too
+    pts = pts[(np.abs(pts) <= FAR_M).all(1)]   # NaN compares False: dropped too
     if voxel <= 0 or pts.shape[0] == 0:
         return pts
     return geometry.voxel_downsample(pts, voxel).astype(np.float64)
@@ -82,7 +82,8 @@ def check_rim(rim) -> int:
     return int(rim)
 
 
-MAX_FOOTPRINT_CELLS = 1 << 22   # 2048 x 2048 cells: 410 m square at 0.2 m, 4 MB, ~0.1 s
+MAX_FOOTPRINT_CELLS = 1 << 24   # 4096 x 4096 cells: 820 m square at 0.2 m, 16 MB, about 1 s
+FAR_M = 10 * geometry.MAX_COORD_M   # verification points beyond: no map's, levelled or posed
 
 
 class Footprint:
@@ -90,8 +91,9 @@ class Footprint:
     nearby cells closed, enclosed holes (the free middle of a room) filled, one cell of
     margin. The grid spans the cloud, but at most MAX_FOOTPRINT_CELLS: a cloud wider than
     that (a stray point kilometres out: the grid's cost grows with the square of the span)
-    keeps the cells of its central 99.8 % per axis, and at most that many about its median
-    cell; points outside lie off the plan."""
+    keeps the cells of its central 99.8 % per axis, and when that is still too wide, a window
+    about its median cell (the narrow axis whole if it can be); points outside lie off the
+    plan."""
 
     def __init__(self, pts: np.ndarray, cell: float = 0.2):
         self.cell = float(cell)
@@ -141,9 +143,14 @@ def _within_budget(ij: np.ndarray, pad: int) -> np.ndarray:
     if cells(lo, hi) <= MAX_FOOTPRINT_CELLS:
         return ij
     lo, hi = np.floor(np.percentile(ij, 0.1, axis=0)), np.ceil(np.percentile(ij, 99.9, axis=0))
-    if cells(lo, hi) > MAX_FOOTPRINT_CELLS:
-        half = (int(np.sqrt(MAX_FOOTPRINT_CELLS)) - 1) // 2 - pad
+    if cells(lo, hi) > MAX_FOOTPRINT_CELLS:   # a site wider than the budget: a window of it
         mid = ij[np.abs(ij - np.median(ij, axis=0)).sum(1).argmin()]   # a cell, so some are kept
+        span = hi - lo + 1 + 2 * pad
+        side = np.empty(2)
+        narrow = int(np.argmin(span))    # the narrow axis whole where it can be, the rest long
+        side[narrow] = min(span[narrow], np.sqrt(MAX_FOOTPRINT_CELLS))
+        side[1 - narrow] = MAX_FOOTPRINT_CELLS / side[narrow]
+        half = np.maximum(np.floor((side - 1) / 2) - pad, 0)
         lo, hi = np.maximum(np.minimum(lo, mid), mid - half), np.minimum(np.maximum(hi, mid), mid + half)
     return ij[((ij >= lo) & (ij <= hi)).all(1)]
 

@@ -63,7 +63,7 @@ from ..config import param
 from ..geometry import invert_transform, is_rigid, is_rotation
 from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
-from ..maps.level import MAX_TILT_DEG, Levelling
+from ..maps.level import MAX_TILT_DEG, Levelling, tilt_deg
 from ..pipeline import Correspondences, PipelineConfig, Registration, register_features, to_map_frames
 from .agent import AgentCore
 from .messages import DenseRequestMessage, Estimate, GraphMessage
@@ -416,7 +416,12 @@ class Peers:
         if peer in self._witnesses and not held:
             del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
-        if not passed or not is_rigid(T_peer_agent):
+        if not passed:
+            return
+        if not is_rigid(T_peer_agent):   # the ROS layer decodes rigid ones only
+            self.agent.refuse("bad_result", "")
+            self._say_once(("bad_result", peer), f"result of {peer!r} with a transform that is not "
+                           "rigid; no witness")
             return
         T = np.asarray(T_peer_agent, np.float64)
         if peer not in self._witnesses and len(self._witnesses) >= self.cfg.max_peers:
@@ -672,8 +677,7 @@ class Peers:
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
         if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
             return "bad_nodes", "extents do not match the nodes, or a node id repeats"
-        if not is_rotation(msg.level) or np.degrees(np.arccos(np.clip(
-                np.asarray(msg.level, np.float64)[2, 2], -1.0, 1.0))) > MAX_TILT_DEG:
+        if not is_rotation(msg.level) or tilt_deg(msg.level) > MAX_TILT_DEG:
             return "bad_level", f"the levelling is not a rotation that tilts by {MAX_TILT_DEG:g} deg at most"
         arrays = [desc, centers, msg.extents] + ([msg.points] if msg.points is not None else [])
         if not all(np.isfinite(a).all() for a in arrays):

@@ -643,6 +643,7 @@ def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, coun
     (lambda m: setattr(m, "level", -np.eye(3)), "bad_level"),
     (lambda m: setattr(m, "level", np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])), "bad_level"),  # on its side
     (lambda m: setattr(m, "level", [[1.0, 0.0], [0.0, 1.0, 0.0]]), "bad_level"),  # ragged
+    (lambda m: setattr(m, "level", tilted(31.0)), "bad_level"),                  # past 30 deg
     (lambda m: setattr(m, "extents", None), "malformed_message"),
     (lambda m: setattr(m, "nodes", replace(m.nodes, node_ids=m.nodes.node_ids[:, None])), "malformed_message"),
     (lambda m: setattr(m, "nodes", replace(m.nodes, centers=m.nodes.centers.astype(object))), "malformed_message"),
@@ -656,6 +657,16 @@ def test_coarse_messages_the_ros_layer_could_not_make_are_refused_too(model, gra
     assert reg.on_coarse(msg, now=0.0) == (None, None)
     assert reg.counters[counter] == 1
     assert "b" not in reg.links or reg.links["b"].coarse is None
+    ok = b.coarse_message(2)
+    ok.level = tilted(29.0)          # a levelling within the bound is taken
+    reg.on_coarse(ok, now=1.0)
+    assert reg.counters[counter] == 1 and reg.links["b"].coarse is ok
+
+
+def tilted(deg: float) -> np.ndarray:
+    """A levelling rotation that tilts a map by deg about x."""
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 @pytest.mark.parametrize("corrupt,counter", [
@@ -730,7 +741,7 @@ def test_a_peer_result_that_is_not_a_rigid_transform_is_no_witness(model, graphs
     a, b, reg, _ = make_agents(model, graphs)
     for T in (np.full((4, 4), np.nan), "T", [[1.0, 0.0]], np.diag([1.0, 1.0, -1.0, 1.0])):
         reg.on_peer_result("b", T, True, "dense", "ok", "confirmed", now=0.0)
-    assert "b" not in reg._witnesses
+    assert "b" not in reg._witnesses and reg.counters["bad_result"] == 4
 
 
 def test_witnesses_taken_back_leave_the_bound_on_peers_working(model, graphs):
