@@ -679,7 +679,7 @@ class Peers:
             return "bad_nodes", "extents do not match the nodes, or a node id repeats"
         if not is_rotation(msg.level) or tilt_deg(msg.level) > MAX_TILT_DEG:
             return "bad_level", f"the levelling is not a rotation that tilts by {MAX_TILT_DEG:g} deg at most"
-        arrays = [desc, centers, msg.extents] + ([msg.points] if msg.points is not None else [])
+        arrays = [desc, centers, msg.extents] + ([msg.points] if dense else [])
         if not all(np.isfinite(a).all() for a in arrays):
             return "invalid_values", "NaN or inf in features, centers, extents or points"
         if n < self.agent.cfg.min_nodes:
