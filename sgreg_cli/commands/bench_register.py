@@ -90,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
+    from sgreg_core.bench import machine
     from sgreg_core.bench.cases import build_cases
     from sgreg_core.bench.register_bench import SGREG_METHODS, run_case
     from sgreg_core.bench.register_report import format_tables, plot_recall, summarize
@@ -110,15 +111,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"sgreg bench-register: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     torch.set_num_threads(max(1, cfg.threads))
+    host = machine.describe()
+    before = machine.reference_ms()
 
     rows = []
     bar = tqdm(cases, desc="bench-register", unit="case", disable=args.no_progress)
     for case in bar:
         bar.set_postfix_str(f"{case.setting} {case.name}")
         rows += run_case(model, case, cfg)
+    host["reference_ms"] = {"before": before, "after": machine.reference_ms()}
     summary = summarize(rows)
     print(format_tables(summary))
     print(f"times: {TIMING_NOTE}")
+    print(machine.summary_line(host))
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -126,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
                "weights_id": model.weights_id if model is not None else None}
 
     (out / "results.json").write_text(json.dumps(_json_safe(
-        {**weights, "timing": TIMING_NOTE, "summary": summary, "rows": rows}), indent=1) + "\n")
+        {**weights, "timing": TIMING_NOTE, "machine": host, "summary": summary, "rows": rows}),
+        indent=1) + "\n")
     (out / "config.json").write_text(json.dumps(
         {**weights, "config": to_dict(cfg), "argv": vars(args)}, indent=1) + "\n")
     plot_recall(summary, out / "recall.png")

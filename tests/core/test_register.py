@@ -162,6 +162,11 @@ def test_bench_register_schema(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "clean" in printed and "different_rooms" in printed and "kiss_matcher" in printed
     results = json.loads((out / "results.json").read_text())
+    # the machine and its speed at the time, so that runs on other days can be compared
+    host = results["machine"]
+    assert host["cores"] >= 1 and host["torch_threads"] == 1 and host["cpu"]
+    assert all(0 < host["reference_ms"][k] < 10_000 for k in ("before", "after"))
+    assert "reference workload" in printed
     config = json.loads((out / "config.json").read_text())
     assert config["config"]["cases"]["n"] == 2 and config["weights_id"] == results["weights_id"]
     assert (out / "recall.png").stat().st_size > 10_000

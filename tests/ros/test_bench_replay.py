@@ -42,6 +42,7 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert row["bags"] == 2 and row["query_frames"] == sum(summary["bags"][n]["query_frames"] for n in names)
     assert row["wrong_verified"] == 0
     assert summary["reliability"]["n"] == row["query_frames"]
+    assert summary["machine"]["reference_ms"]["before"] > 0 and "reference workload" in stdout
     assert (out / "summary.png").stat().st_size > 10_000
     assert json.loads((out / "config.json").read_text())["weights_id"]
     assert "success (registrable)" in stdout and "suite tiny" in stdout
