@@ -7,7 +7,9 @@ estimate (pose/geometric.py), with the semantic route's hypotheses as rivals, wh
 semantic verdict said, and records its evidence and whether it is right (RMSE under the
 benchmark's 0.2 m; different rooms: never). It prints how right and wrong poses spread over the
 evidence, fits the logistic confidence (bias, footprint fitness, footprint share, ambiguity)
-and shows what the shipped gates accept with the fitted weights. Output JSON keeps every pose.
+and shows what the shipped gates accept with the fitted weights and with the shipped ones.
+Rivals (the semantic hypotheses and the pose's own turns) are rated for every pose, including
+those the gates refuse before the pipeline would look for rivals. Output JSON keeps every pose.
 
     python scripts/choose_geometric.py --seeds 3 4 --settings frontend noisy different_rooms \
         --out results/choose_geometric.json
@@ -39,6 +41,9 @@ TRAINING_ROOMS = ("scene0000", "scene0001", "scene0002", "scene0003", "scene0004
 def poses(seeds, settings, cfg: PipelineConfig) -> list[dict]:
     model = load_model()
     pose_cfg = replace(cfg.pose, icp=True)
+    # the pipeline rates rivals only for a pose the clouds support; the fit needs the ambiguity
+    # of every pose, the gates are applied afterwards
+    every_rival = replace(cfg.geometric, min_fitness=0.0, min_footprint_share=0.0)
     out = []
     for seed in seeds:
         cases = build_cases(CaseConfig(rooms=TRAINING_ROOMS, held_out_rooms=("scene0005",),
@@ -53,7 +58,7 @@ def poses(seeds, settings, cfg: PipelineConfig) -> list[dict]:
                 if len(w) >= 3 else []
             reference = ReferenceCloud(reference_cloud(rg), pose_cfg.verify_voxel, pose_cfg.footprint_cell)
             geo = geometric_estimate(s, r, np.asarray(pts.node_match), node_cloud(sg), reference,
-                                     rivals, pose_cfg, cfg.geometric)
+                                     rivals, pose_cfg, every_rival)
             if geo is None:
                 continue
             right = case.T_gt is not None and bool(registration_success(
@@ -87,12 +92,13 @@ def main() -> None:
     w = fit_logistic(X, y, free_bias=True)
     print("fitted confidence_weights:", tuple(round(float(x), 3) for x in w))
     fitted = replace(cfg.geometric, confidence_weights=tuple(float(x) for x in w))
-    accepted = np.array([judge_geometric(Evidence(fitness=r["fitness"], footprint_share=r["footprint_share"],
-                                                  ambiguity=r["ambiguity"]),
-                                         cfg.pose.verdict, fitted) == "ok" for r in rows])
-    print(f"gates with the fitted weights: {int((accepted & (y == 1)).sum())} right and "
-          f"{int((accepted & (y == 0)).sum())} wrong accepted, "
-          f"{int((~accepted & (y == 1)).sum())} right refused")
+    for label, geo_cfg in (("fitted", fitted), ("shipped", cfg.geometric)):
+        accepted = np.array([judge_geometric(Evidence(fitness=r["fitness"], footprint_share=r["footprint_share"],
+                                                      ambiguity=r["ambiguity"]),
+                                             cfg.pose.verdict, geo_cfg) == "ok" for r in rows])
+        print(f"gates with the {label} weights: {int((accepted & (y == 1)).sum())} right and "
+              f"{int((accepted & (y == 0)).sum())} wrong accepted, "
+              f"{int((~accepted & (y == 1)).sum())} right refused")
     conf = np.array([geometric_confidence(Evidence(fitness=r["fitness"], footprint_share=r["footprint_share"],
                                                    ambiguity=r["ambiguity"]), fitted) for r in rows])
     for lo, hi in ((0, .1), (.1, .5), (.5, .9), (.9, 1.01)):

@@ -14,7 +14,7 @@ from sgreg_core.pose.geometric import (GeometricConfig, geometric_confidence, ge
                                        judge_geometric)
 from sgreg_core.pose.verdict import Evidence, VerdictConfig
 
-from test_pose_estimator import box_room, pose_error
+from test_pose_estimator import ROOM, box_room, pose_error
 from test_pose_guided import K, features, room_objects, sample
 
 
@@ -169,9 +169,37 @@ def test_a_rival_that_fits_as_well_makes_a_tie(monkeypatch):
     assert res.T_competitor is not None and res.evidence.ambiguity >= 0.99
 
 
+def test_a_room_that_looks_the_same_half_a_turn_round_is_a_tie_without_any_semantic_rival():
+    """The semantic route proposed nothing: the geometric pose's own turns are its rivals. A
+    room whose furniture repeats half a turn round is refused as a tie; the same room without
+    the repeat is registered."""
+    from sgreg_core.pose.geometric import geometric_estimate
+
+    rng = np.random.default_rng(4)
+    room, _, _ = room_objects(rng)
+    symmetric = np.concatenate([room, np.c_[ROOM[:2] - room[:, :2], room[:, 2]]])
+    T = make_T(yaw_rotation(0.8), np.array([3.0, -2.0, 0.0]))
+    pose_cfg = PipelineConfig().pose
+    empty, none = np.zeros((0, 3)), np.zeros(0, np.int64)
+
+    def estimate(cloud, cfg=GeometricConfig()):
+        reference = ReferenceCloud(apply_T(T, cloud), pose_cfg.verify_voxel, pose_cfg.footprint_cell)
+        return geometric_estimate(empty, empty, none, cloud, reference, [], pose_cfg, cfg)
+
+    tie = estimate(symmetric)
+    assert tie is not None and tie.reason == "ambiguous" and not tie.success
+    assert tie.evidence.ambiguity >= GeometricConfig().max_ambiguity
+    assert estimate(symmetric, GeometricConfig(turns_deg=())).success   # what the turns catch
+    plain = estimate(room)
+    assert plain.success and plain.evidence.ambiguity < GeometricConfig().max_ambiguity
+    dt, dr = pose_error(plain.T, T)
+    assert dt < 0.05 and dr < 1.0
+
+
 @pytest.mark.parametrize("bad", [{"voxel": 0}, {"min_fitness": 1.5}, {"after": ("ambiguous",)},
                                  {"confidence_weights": (1.0, 2.0)}, {"icp_distances": ()},
-                                 {"min_points": 2}, {"min_voxels": -1}])
+                                 {"min_points": 2}, {"min_voxels": -1},
+                                 {"turns_deg": (360.0,)}, {"turns_deg": (float("nan"),)}])
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError):
         GeometricConfig(**bad)
