@@ -129,6 +129,8 @@ class PipelineConfig:
     def __post_init__(self):
         if self.coarse_pairs < 0:
             raise ValueError(f"coarse_pairs must be >= 0, got {self.coarse_pairs}")
+        if self.min_nodes < 1:
+            raise ValueError(f"min_nodes must be >= 1, got {self.min_nodes}")
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.icp not in ICP_MODES:

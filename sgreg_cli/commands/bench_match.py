@@ -65,13 +65,16 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
-    from sgreg_core.config import apply_overrides, to_dict
+    from sgreg_core.config import apply_overrides, from_dict, to_dict
     from sgreg_core.bench.cases import VIEW_NOISE
     from sgreg_core.net.dataset import DataConfig, PairSource, augment
     from sgreg_core.net.evaluate import evaluate_pairs, summarize
     from sgreg_core.net.model import DEFAULT_WEIGHTS, load_model
     from sgreg_core.net.text import TextEncoder
 
+    if args.threads < 1 or args.pairs < 1 or args.seed < 0:
+        print("sgreg bench-match: --threads and --pairs must be >= 1, --seed >= 0", file=sys.stderr)
+        return 2
     torch.set_num_threads(args.threads)
     weights = args.weights or [str(DEFAULT_WEIGHTS)]
     names = args.names or [_name(w) for w in weights]
@@ -83,11 +86,11 @@ def run(args: argparse.Namespace) -> int:
         models = [load_model(w, text_encoder=text) for w in weights]
         overrides = apply_overrides({}, args.match_overrides)
         for model in models:
-            # the matchers hold this same MatchConfig object: thresholds change in place
-            for key, value in overrides.items():
-                if not hasattr(model.cfg.match, key):
-                    raise ValueError(f"--match: MatchConfig has no entry {key!r}")
-                setattr(model.cfg.match, key, value)
+            # checked as a MatchConfig (names, types, ranges) before any model runs; the
+            # matchers hold the model's MatchConfig object, so thresholds change in place
+            checked = from_dict(type(model.cfg.match), overrides)
+            for key in overrides:
+                setattr(model.cfg.match, key, getattr(checked, key))
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"sgreg bench-match: {exc}", file=sys.stderr)
         return 2

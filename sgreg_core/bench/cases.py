@@ -84,6 +84,17 @@ class CaseConfig:
     iou_voxel: float = 0.1
     seed: int = 0
 
+    def __post_init__(self):
+        if not (self.n >= 1 and self.rescan_seeds >= 0 and self.rescan_seen_seeds >= 0
+                and self.seed >= 0):
+            raise ValueError(f"cases: n must be >= 1, rescan_seeds, rescan_seen_seeds and seed "
+                             f">= 0 (n={self.n}, seed={self.seed})")
+        lo, hi = self.overlap
+        if not (0.0 < lo <= hi <= 1.0 and 0.0 <= self.halves_prob <= 1.0
+                and 0.0 <= self.max_translation < np.inf and 0.0 < self.iou_voxel < np.inf):
+            raise ValueError("cases: overlap must be 0 < low <= high <= 1, halves_prob in [0, 1], "
+                             "max_translation finite and >= 0, iou_voxel finite and > 0")
+
 
 @dataclass
 class Case:

@@ -66,6 +66,8 @@ class BenchConfig:
     threads: int = 1
 
     def __post_init__(self):
+        if self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {self.threads}")
         bad = [m for m in self.methods if m not in METHODS]
         if bad:
             raise ValueError(f"unknown method(s) {bad}; choose from {list(METHODS)}")

@@ -57,6 +57,13 @@ class GraphConfig:
                                  # closer than this always link, up to ~3.5x this may)
     box_angles: int = 90         # orientations tried for the minimum-area box (1 deg steps)
 
+    def __post_init__(self):
+        sizes = ("voxel_size", "edge_factor", "max_radius", "contact_dist")
+        if not (all(0.0 < getattr(self, k) < np.inf for k in sizes) and 0.0 <= self.min_size < np.inf
+                and self.min_points >= 1 and self.box_angles >= 1):
+            raise ValueError(f"graph: {', '.join(sizes)} must be finite and > 0, min_size >= 0, "
+                             f"min_points and box_angles >= 1")
+
 
 def _runs(*cols: np.ndarray) -> np.ndarray:
     """Start index of each run of equal rows in already sorted columns."""

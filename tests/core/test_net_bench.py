@@ -59,3 +59,13 @@ def test_bench_match_reports_missing_weights(tmp_path, capsys):
                      "--out", str(tmp_path / "b.json")])
     assert code == 2
     assert "nope.json" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args", [["--pairs", "0"], ["--threads", "0"], ["--seed", "-1"],
+                                  ["--match", "point_threshold=abc"], ["--match", "no_such=1"]])
+def test_bench_match_refuses_bad_arguments_before_any_pair(tmp_path, capsys, args):
+    code = cli.main(["bench-match", *args, "--scans-dir", str(tmp_path / "none"),
+                     "--out", str(tmp_path / "b.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("sgreg bench-match: ") and "\n" not in err
+    assert not (tmp_path / "b.json").exists()

@@ -104,7 +104,11 @@ def test_set_overrides_the_pipeline_config(data, capsys):
     for bad in ("pose.no_such_key=1", "pose.footprint_rim=-1", "pose.footprint_rim=1.5",
                 "pose.footprint_probe=-0.5",
                 "pose.footprint_rim=[1", "pose=1", "pose.verdict.min_inliers", "guided.after=[ok]",
-                "repeats.after=[ambiguous, ok]", "repeats.min_confidence=2"):
+                "repeats.after=[ambiguous, ok]", "repeats.min_confidence=2",
+                # wrong types and settings that divided by zero or were taken as they came
+                "min_nodes=abc", "min_nodes=0", "graph.voxel_size=abc", "graph.voxel_size=0",
+                "graph.voxel_size=.nan", "graph.voxel_size=-0.05", "graph.box_angles=0",
+                "icp=true", "pose.clique_deltas=[0.2, x]"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad

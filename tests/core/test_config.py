@@ -1,0 +1,49 @@
+"""Typed configs from plain dicts (sgreg_core/config.py): a value of the wrong type, NaN, or a
+node parameter outside its declared range is refused with the field named, before any
+component runs with it."""
+import math
+
+import pytest
+
+from sgreg_core.bench.cases import CaseConfig
+from sgreg_core.bench.register_bench import BenchConfig
+from sgreg_core.config import from_dict
+from sgreg_core.maps.scene_graph import GraphConfig
+from sgreg_core.pipeline import PipelineConfig
+
+
+@pytest.mark.parametrize("data, field", [
+    ({"min_nodes": "abc"}, "PipelineConfig.min_nodes must be int"),
+    ({"min_nodes": 3.5}, "PipelineConfig.min_nodes must be int"),
+    ({"mode": 1}, "PipelineConfig.mode must be str"),
+    ({"graph": {"voxel_size": "abc"}}, "GraphConfig.voxel_size must be float"),
+    ({"graph": {"voxel_size": math.nan}}, "GraphConfig.voxel_size must be float"),
+    ({"graph": {"voxel_size": True}}, "GraphConfig.voxel_size must be float"),
+    ({"graph": {"voxel_size": 0.0}}, "GraphConfig.voxel_size must lie in [0.01, 0.5]"),
+    ({"geometric": {"enabled": "yes"}}, "GeometricConfig.enabled must be bool"),
+    ({"pose": {"clique_deltas": [0.2, "x"]}}, "PoseConfig.clique_deltas must be tuple[float, ...]"),
+    ({"pose": {"clique_deltas": 0.2}}, "PoseConfig.clique_deltas must be tuple[float, ...]"),
+])
+def test_a_value_of_the_wrong_type_or_range_is_refused_naming_the_field(data, field):
+    with pytest.raises(ValueError) as err:
+        from_dict(PipelineConfig, data)
+    assert str(err.value).startswith(field)
+
+
+def test_values_of_the_right_type_are_taken():
+    cfg = from_dict(PipelineConfig, {"min_nodes": 4, "graph": {"voxel_size": 0.1, "box_angles": 45},
+                                     "pose": {"clique_deltas": [0.2, 1]}, "geometric": {"turns_deg": [180]}})
+    assert cfg.min_nodes == 4 and cfg.graph.voxel_size == 0.1 and cfg.graph.box_angles == 45
+    assert cfg.pose.clique_deltas == (0.2, 1) and cfg.geometric.turns_deg == (180,)
+    assert from_dict(PipelineConfig, {"graph": {"voxel_size": 0.5}}).graph.voxel_size == 0.5   # the bound itself
+
+
+@pytest.mark.parametrize("make", [
+    lambda: GraphConfig(box_angles=0), lambda: GraphConfig(edge_factor=0.0),
+    lambda: GraphConfig(contact_dist=math.inf), lambda: GraphConfig(min_points=0),
+    lambda: PipelineConfig(min_nodes=0), lambda: CaseConfig(n=0), lambda: CaseConfig(seed=-1),
+    lambda: CaseConfig(max_translation=math.nan), lambda: CaseConfig(overlap=(0.8, 0.3)),
+    lambda: BenchConfig(threads=0)])
+def test_settings_that_would_divide_by_zero_or_score_nothing_are_refused(make):
+    with pytest.raises(ValueError):
+        make()
