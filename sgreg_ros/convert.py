@@ -91,15 +91,20 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
                            scores={i: float(s) for i, s in zip(ids, scores)})
 
 
-def take_instance_map(raw: bytes, take, refuse) -> str | None:
-    """The one map intake of both nodes: decode an InstanceMap and hand it to
-    take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None, or
-    the one-line reason the map was refused, counted through refuse(counter, why): bytes that
-    do not decode are "malformed_message", fields that do not fit "bad_instance_map"."""
+def take_instance_map(raw: bytes, take, refuse, agent_id: str) -> str | None:
+    """The one map intake of both nodes of agent `agent_id`: decode an InstanceMap and hand it
+    to take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None,
+    or the one-line reason the map was refused, counted through refuse(counter, why): bytes
+    that do not decode are "malformed_message", fields that do not fit "bad_instance_map", and
+    so is a map that names another agent or frame (a remapping slip: registered as the own
+    map, another agent's map verifies the identity as the transform to that agent)."""
     try:
         msg = decode(raw, InstanceMap)
     except ConversionError as exc:
         return refuse("malformed_message", f"instance map refused: {exc}")
+    foreign = _foreign(msg, agent_id)
+    if foreign:
+        return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {foreign}")
     try:
         imap = instance_map_from_msg(msg)
     except ConversionError as exc:
@@ -108,6 +113,19 @@ def take_instance_map(raw: bytes, take, refuse) -> str | None:
         return take(imap, int(msg.sequence), stamp_to_ns(msg.header.stamp))
     except Exception as exc:  # a bug must cost one map, not the node
         return refuse("internal_error", f"instance map {msg.sequence} failed: {exc!r}")
+
+
+def _foreign(msg: InstanceMap, agent_id: str) -> str:
+    """Why an instance map is not agent_id's own ("" when it is): its sender or its frames name
+    another agent. Empty fields are taken (a front end may leave them unset)."""
+    frame = f"{agent_id}/map"
+    if msg.agent_id and msg.agent_id != agent_id:
+        return f"it is agent {msg.agent_id!r}'s map, not {agent_id!r}'s"
+    for name, value in (("header.frame_id", msg.header.frame_id),
+                        ("points.header.frame_id", msg.points.header.frame_id)):
+        if value and value.lstrip("/") != frame:
+            return f"{name} is {value!r}, not {frame!r}"
+    return ""
 
 
 def instance_map_to_msg(imap: CoreInstanceMap, agent_id: str, sequence: int, stamp_ns: int) -> InstanceMap:

@@ -9,11 +9,15 @@ Every other parameter is declared read-only, so setting it is refused instead of
 changing nothing."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from sgreg_core.config import node_params
+
+
+AGENT_ID = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
 class ParameterError(ValueError):
@@ -49,6 +53,8 @@ def pick(cls, values: dict) -> dict:
 
 def check(p: Param, value):
     """`value` if it suits parameter p (type, range, choices); else ParameterError."""
+    if value is None and isinstance(p.default, list):
+        value = []   # rclpy gives an empty array ("-p peers:=[]") no type: None
     if type(value) is not type(p.default) and not (isinstance(p.default, float) and type(value) is int):
         raise ParameterError(f"parameter '{p.name}' must be {type(p.default).__name__}, got {value!r}")
     if p.low is not None and not (p.low <= value <= p.high):
@@ -110,6 +116,17 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
     node.add_on_set_parameters_callback(on_set)
 
 
+def is_agent_id(name: str) -> bool:
+    """Whether `name` can be an agent id: one token of a ROS name (a letter, then letters,
+    digits and single underscores), since it starts every topic of the agent."""
+    return bool(AGENT_ID.fullmatch(name)) and "__" not in name
+
+
+def frame_ok(frame: str) -> bool:
+    """Whether `frame` is a usable tf frame id: tokens as in agent ids, joined by '/'."""
+    return bool(frame) and all(is_agent_id(t) for t in frame.split("/"))
+
+
 def agent_name_from(node, configured: str) -> str:
     """The agent id, which is also the prefix of every topic of the node (/<id>/sgreg/...):
     the 'agent_name' parameter, else the node's namespace ('/a' -> 'a'). Both may be given only
@@ -119,6 +136,9 @@ def agent_name_from(node, configured: str) -> str:
     if not name or "/" in name:
         raise ParameterError("set 'agent_name' or run the node in a one-level namespace "
                              "(--ros-args -r __ns:=/a)")
+    if not is_agent_id(name):
+        raise ParameterError(f"agent name {name!r} cannot start a topic name: a letter, then "
+                             "letters, digits and single underscores")
     if configured and namespace and configured != namespace:
         raise ParameterError(f"agent_name '{configured}' differs from the namespace '/{namespace}': "
                              "give one of them (the topics are /<agent>/sgreg/...)")

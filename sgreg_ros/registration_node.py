@@ -38,7 +38,7 @@ from sgreg_core.runtime import views
 
 from . import convert, markers, qos
 from .node_base import SgregNode
-from .params import params_of, pick
+from .params import ParameterError, frame_ok, is_agent_id, params_of, pick
 
 
 @dataclass
@@ -66,16 +66,17 @@ class RegistrationNodeConfig:
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
                    PoseConfig, MergeConfig, HealthConfig, AuthConfig,
                    skip=("dense_answers_per_s", "heartbeat_period_s", "quiet_after_s"))
-COARSE_TOPIC = re.compile(r"^/([A-Za-z0-9_]+)/sgreg/coarse$")
+COARSE_TOPIC = re.compile(r"^/([A-Za-z][A-Za-z0-9_]*)/sgreg/coarse$")
 
 
 class RegistrationNode(SgregNode):
     def __init__(self):
         super().__init__("registration", PARAMS)
         p = self.p
+        self.fixed_peers = self.peer_list(p["peers"])
+        self.check_merged_frame(p["merged_frame"])
         model = self.load_model()
         self.peers = None
-        self.fixed_peers = [x for x in p["peers"] if x]
         self.result_seq = 0
         self.request_pubs: dict[str, object] = {}
         self.peer_entities: dict[str, list] = {}    # peer -> its publisher and subscriptions
@@ -121,6 +122,25 @@ class RegistrationNode(SgregNode):
             self.get_logger().info(f"registration for '{self.name}' up, peers: "
                                    f"{self.fixed_peers or 'discovered'}, weights {self.agent.weights_id}")
         self.accept_live_parameters()
+
+    def peer_list(self, peers: list) -> list[str]:
+        """The fixed peers ([] or [''] to discover them), or ParameterError: each must be an
+        agent id, and not this agent's own (a list of only that would hear nobody)."""
+        fixed = [x for x in peers if x]
+        bad = [x for x in fixed if not is_agent_id(x)]
+        if bad:
+            raise ParameterError(f"peers {bad} are not agent ids (a letter, then letters, digits "
+                                 "and single underscores)")
+        if self.name in fixed:
+            raise ParameterError(f"peers lists this agent's own name {self.name!r}")
+        return fixed
+
+    def check_merged_frame(self, frame: str) -> None:
+        """The shared frame must be a valid tf frame id and no agent's own map frame (a frame
+        that is its own parent breaks every tf tree that holds it)."""
+        if not frame_ok(frame) or frame.endswith("/map"):
+            raise ParameterError(f"merged_frame {frame!r} must be a tf frame id (tokens of letters, "
+                                 "digits and underscores joined by '/') and not an agent's <id>/map")
 
     def apply(self, changes: dict) -> None:
         if self.peers is None:
@@ -178,7 +198,8 @@ class RegistrationNode(SgregNode):
 
     # ---- callbacks -----------------------------------------------------------------------
     def on_instances(self, raw: bytes) -> None:
-        why = convert.take_instance_map(raw, self.peers.take_own_map, self.agent.refuse)
+        why = convert.take_instance_map(raw, self.peers.take_own_map, self.agent.refuse,
+                                        self.agent.cfg.name)
         self.map_taken(why)
         if why is None:
             self.merger.set_level(self.name, self.agent.level.R)

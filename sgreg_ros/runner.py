@@ -41,14 +41,39 @@ class StopRequest:
         return self
 
 
+_STOP: StopRequest | None = None
+
+
+def install_stop() -> StopRequest:
+    """The process's StopRequest, installed on first use: the executables call this before
+    anything else is imported, run_node again (a no-op then)."""
+    global _STOP
+    if _STOP is None:
+        _STOP = StopRequest().install()
+    return _STOP
+
+
+def missing_params_files(args: list[str]) -> list[str]:
+    """The --params-file arguments of a ROS command line that name no readable file: rclpy.init
+    would fail on them with a traceback, after torch and the model had loaded."""
+    return [path for flag, path in zip(args, args[1:])
+            if flag == "--params-file" and not os.access(path, os.R_OK)]
+
+
 def run_node(load_node_class, args=None) -> int:
     """load_node_class() imports the node's module (torch, the model) and returns its class."""
-    stop = StopRequest().install()
+    stop = install_stop()
     from .params import ParameterError
 
+    missing = missing_params_files(sys.argv if args is None else args)
+    if missing:
+        print(f"[sgreg] refusing to start: parameter file {missing[0]!r} cannot be read",
+              file=sys.stderr, flush=True)
+        return 2
     node_class = load_node_class()
     import rclpy
     import torch
+    from rclpy.exceptions import NameValidationException
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
@@ -57,7 +82,12 @@ def run_node(load_node_class, args=None) -> int:
     torch.set_num_threads(1)
     if stop.requested:
         return 0
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:  # noqa: BLE001 - rclpy's RCLError: e.g. a parameter file that is no YAML
+        print(f"[sgreg] refusing to start: ROS could not start with these arguments: "
+              f"{' '.join(str(exc).split())}", file=sys.stderr, flush=True)
+        return 2
     node = None
     try:
         node = node_class()
@@ -66,8 +96,8 @@ def run_node(load_node_class, args=None) -> int:
         while not stop.requested and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_SLICE_S)
         return 0
-    except ParameterError as exc:
-        print(f"[sgreg] refusing to start: {exc}", file=sys.stderr, flush=True)
+    except (ParameterError, NameValidationException) as exc:   # the latter: e.g. __ns:=/1a
+        print(f"[sgreg] refusing to start: {' '.join(str(exc).split())}", file=sys.stderr, flush=True)
         return 2
     finally:
         if node is not None:

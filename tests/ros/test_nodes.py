@@ -91,6 +91,10 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     big.features = bytes(2 * n * good.feature_dim)
     # (publisher, message): one at a time, since the topics keep only the newest message
     bad = [(pub_map, instance_map_to_msg(m, "a", 10_000 + i, time.time_ns())) for i, m in enumerate((empty, nan, tiny))]
+    # b's map on a's input (a remapping slip): taken as a's own, it verified the identity as a -> b
+    other_frame = instance_map_to_msg(maps["b"], "a", 10_003, time.time_ns())
+    other_frame.header.frame_id = "b/map"
+    bad += [(pub_map, instance_map_to_msg(maps["b"], "b", 10_004, time.time_ns())), (pub_map, other_frame)]
     bad += [(pub_map, b"\x00\x01garbage"),                              # undecodable
             (pub_x, b"\x00\x01\x00\x00garbage"),
             (pub_x, fake_coarse(50, weights_id="deadbeef0000")),       # other weights
@@ -114,7 +118,7 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     time.sleep(1.0)
     inject()
     reg_a, agent_a = "/a/registration", "/a/agent"
-    wanted = [(agent_a, "bad_instance_map", 3), (agent_a, "malformed_message", 1),
+    wanted = [(agent_a, "bad_instance_map", 5), (agent_a, "malformed_message", 1),
               (reg_a, "malformed_message", 1), (reg_a, "rejected_weights", 1),
               (reg_a, "bad_feature_size", 1), (reg_a, "duplicate_sequence", 1),
               (reg_a, "out_of_order_sequence", 1), (reg_a, "oversized_message", 1),
@@ -127,6 +131,8 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     # and registration goes on: a fresh verified transform arrives after the bad input
     before = len(w.transforms.get(("a", "b"), []))
     assert w.spin_until(lambda: len(w.transforms.get(("a", "b"), [])) > before, 60, publish_maps=maps)
+    for (agent, peer), Ts in w.transforms.items():     # and nothing wrong was published
+        assert all(two_agent_success(T, ground_truth(frames, agent, peer)) for T in Ts), (agent, peer)
 
 
 def test_a_peer_that_never_answers(two):

@@ -44,6 +44,10 @@ def test_three_agents_register_pairwise(ros, tmp_path):
     ("agent", {"coarse_rate_hz": -1.0}, "coarse_rate_hz"),
     ("agent", {"feature_encoding": "bits"}, "feature_encoding"),
     ("registration", {"max_retries": "three"}, "max_retries"),
+    ("agent", {"agent_name": "1a"}, "cannot start a topic name"),   # was rclpy's traceback
+    ("registration", {"peers": ["b-c"]}, "are not agent ids"),
+    ("registration", {"peers": ["a"]}, "own name"),                 # would hear nobody
+    ("registration", {"merged_frame": "a/map"}, "merged_frame"),    # a frame its own parent on /tf
 ])
 def test_invalid_parameters_are_refused_at_start(exe, params, words):
     out = subprocess.run(processes.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,
@@ -51,3 +55,20 @@ def test_invalid_parameters_are_refused_at_start(exe, params, words):
     assert out.returncode == 2, out.stderr[-2000:]
     assert "refusing to start" in out.stderr and words in out.stderr
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize("text,words", [
+    (None, "cannot be read"),
+    ("/**:\n  ros__parameters:\n    merged_frame: ''\n", "merged_frame"),   # tf2 refuses '' frames
+    ("/**:\n  ros__parameters: [unclosed\n", "ROS could not start"),
+])
+def test_bad_parameter_files_are_refused_at_start(tmp_path, text, words):
+    path = tmp_path / "params.yaml"
+    if text is not None:
+        path.write_text(text)
+    out = subprocess.run(processes.node_command("registration", "a", params_file=path),
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "refusing to start" in out.stderr and words in out.stderr
+    assert "Traceback" not in out.stderr
+

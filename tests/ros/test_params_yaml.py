@@ -54,3 +54,14 @@ def test_declarations_come_from_the_dataclasses():
 def test_bad_values_are_refused_with_the_reason(param, value):
     with pytest.raises(ParameterError, match="'x'"):
         check(param, value)
+
+
+def test_an_empty_peer_list_means_discovery_and_names_must_start_topics():
+    from sgreg_ros.params import frame_ok, is_agent_id
+
+    peers = next(p for p in REGISTRATION if p.name == "peers")
+    assert check(peers, None) == []      # what rclpy hands over for "-p peers:=[]" (documented)
+    assert [n for n in ("a", "robot_2", "B7") if is_agent_id(n)] == ["a", "robot_2", "B7"]
+    assert not any(is_agent_id(n) for n in ("1a", "a-b", "a__b", "_a", "", "a/b"))
+    assert frame_ok("sgreg_merged") and frame_ok("site/merged")
+    assert not any(frame_ok(f) for f in ("", "a//b", "a-b", " merged"))
