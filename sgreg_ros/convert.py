@@ -97,7 +97,8 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str) -> str | None:
     or the one-line reason the map was refused, counted through refuse(counter, why): bytes
     that do not decode are "malformed_message", fields that do not fit "bad_instance_map", and
     so is a map that names another agent or frame (a remapping slip: registered as the own
-    map, another agent's map verifies the identity as the transform to that agent)."""
+    map, another agent's map verifies the identity as the transform to that agent) or has no
+    stamp."""
     try:
         msg = decode(raw, InstanceMap)
     except ConversionError as exc:
@@ -105,6 +106,9 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str) -> str | None:
     foreign = _foreign(msg, agent_id)
     if foreign:
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {foreign}")
+    if stamp_to_ns(msg.header.stamp) == 0:   # every result made from it would carry no time
+        return refuse("bad_instance_map", f"instance map {msg.sequence} refused: header.stamp is "
+                                          "0 (unset)")
     try:
         imap = instance_map_from_msg(msg)
     except ConversionError as exc:
