@@ -39,7 +39,7 @@ PARAMS = params_of(AgentNodeConfig, AgentConfig, GraphConfig, HealthConfig, Auth
 
 class AgentNode(SgregNode):
     def __init__(self):
-        super().__init__("agent", PARAMS)
+        super().__init__("agent", PARAMS, "sgreg/coarse")
         p = self.p
         self.encoding = ENCODINGS[p["feature_encoding"]]
         model = self.load_model()

@@ -25,7 +25,9 @@ class SgregNode(Node):
     """Subclasses declare their parameter table, build their core, then call `ready()`; they
     apply live parameters in `apply` and describe themselves in `summary`."""
 
-    def __init__(self, executable: str, table: list[Param]):
+    def __init__(self, executable: str, table: list[Param], sole_topic: str):
+        """sole_topic: /<agent>/<sole_topic> is published by this node of the agent alone; a
+        second publisher means a second agent of this name (diagnostics say ERROR)."""
         super().__init__(executable)   # the node is called what it is run as
         self.table = table
         self.p = declare_and_read(self, table)
@@ -34,6 +36,8 @@ class SgregNode(Node):
         self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), self.clock_s())
         self.auth = MessageAuth(AuthConfig(**pick(AuthConfig, self.p)), self.name, self.get_logger())
         self.problem: str | None = None      # why the node cannot do its job at all
+        self.sole_topic = self.topic(sole_topic)
+        self.twin: str | None = None         # another node publishing sole_topic
         self.last_map_at: float | None = None
         self._logged: dict[str, tuple[float, int]] = {}   # refusal kind -> (last logged, suppressed)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
@@ -107,8 +111,20 @@ class SgregNode(Node):
     def summary(self) -> str:
         return ""
 
+    def check_twin(self) -> None:
+        """Another node publishing this node's sole topic: two agents run under one name, and
+        their peers take their maps for one agent's that restarts (ERROR while it lasts)."""
+        others = self.count_publishers(self.sole_topic) - 1
+        twin = (f"{others} other node(s) publish {self.sole_topic}: is agent '{self.name}' "
+                f"running twice?") if others > 0 else None
+        if twin and twin != self.twin:
+            self.get_logger().error(twin)
+        self.twin = twin
+
     def publish_diagnostics(self) -> None:
-        level, message = self.health.status(self.clock_s(), self.refused(), self.last_map_at, self.problem)
+        self.check_twin()
+        level, message = self.health.status(self.clock_s(), self.refused(), self.last_map_at,
+                                            self.problem or self.twin)
         self.diag_pub.publish(convert.diagnostics_msg(
             self.get_fully_qualified_name(), self.name, level, message or self.summary(),
             self.counters(), self.now_ns()))

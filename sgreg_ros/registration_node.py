@@ -71,7 +71,7 @@ COARSE_TOPIC = re.compile(r"^/([A-Za-z][A-Za-z0-9_]*)/sgreg/coarse$")
 
 class RegistrationNode(SgregNode):
     def __init__(self):
-        super().__init__("registration", PARAMS)
+        super().__init__("registration", PARAMS, "sgreg/registration")
         p = self.p
         self.fixed_peers = self.peer_list(p["peers"])
         self.check_merged_frame(p["merged_frame"])

@@ -170,3 +170,21 @@ def test_a_peer_that_restarts(two, tmp_path):
     assert w.spin_until(lambda: w.counter("/a/registration", "peer_restart") >= 1
                         and verified_pairs_ok(w, frames, [("a", "b")]), 120, publish_maps=maps)
     assert not alive(procs)
+
+
+def test_an_agent_started_twice_is_reported(two, tmp_path):
+    """A second agent node named b (a launch file run twice): both report ERROR on /diagnostics
+    while it runs; its peers would take the two for one agent that keeps restarting."""
+    procs, w, maps, _, _ = two
+    twin = processes.start_agents(["b"], executables=("agent",), overrides=FAST, log_dir=tmp_path,
+                                  log_suffix="_twin")
+    try:
+        def reported():
+            return any(level == 2 and "running twice" in message
+                       for level, _, message in w.levels.get("/b/agent", []))
+
+        assert w.spin_until(reported, 60, publish_maps=maps), w.levels.get("/b/agent", [])[-3:]
+        assert not any("running twice" in m for _, _, m in w.levels.get("/a/agent", []))
+    finally:
+        processes.stop(twin)
+    assert not alive(procs)
