@@ -246,3 +246,12 @@ def test_bench_register_schema(tmp_path, capsys):
             assert row["success"] is False and row["false_claim"] == row["claimed"]
     # sgreg never claims a wrong answer on these
     assert all(not r["false_claim"] for r in results["rows"] if r["method"].startswith("sgreg"))
+
+
+def test_bench_register_refuses_an_unusable_out_before_any_case(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("not a folder")
+    code = main(["bench-register", "--scans", str(tmp_path / "no_scans"), "--methods", "kiss_matcher",
+                 "--out", str(tmp_path / "a_file" / "bench"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("sgreg bench-register: cannot create folder ")
+    assert err.count("\n") == 1
