@@ -7,10 +7,15 @@ Public API:
     param(default, help, low=None, high=None, choices=(), factory=None, live=False) -> dataclasses.Field
     node_params(cls) -> {field name: (default, help, low, high, choices, live)}
     from_dict(cls, data) / to_dict(cfg) / apply_overrides(data, ["a.b=1", ...])
+    check_types(cls, data, where) -> None   ValueError naming the first key of a (partial) dict
+                                            that is not a field of cls or whose value does not
+                                            fit the field's type (sections checked in turn)
 """
 from __future__ import annotations
 
 import dataclasses
+import math
+import types
 import typing
 from collections.abc import Callable, Mapping
 
@@ -45,10 +50,7 @@ def from_dict(cls, data: Mapping | None):
     keys are an error naming the class."""
     data = data or {}
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(data) - names
-    if unknown:
-        raise ValueError(f"{cls.__name__}: unknown keys {sorted(unknown)}")
+    _check_keys(cls, data, cls.__name__)
     kwargs = {}
     for key, value in data.items():
         hint = hints[key]
@@ -61,6 +63,76 @@ def from_dict(cls, data: Mapping | None):
             value = tuple(value)
         kwargs[key] = value
     return cls(**kwargs)
+
+
+def _check_keys(cls, data: Mapping, where: str) -> None:
+    unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(map(str, unknown))}")
+
+
+def check_types(cls, data: Mapping, where: str) -> None:
+    """data as from YAML (lists for tuples, ints for floats) against dataclass cls; `where`
+    begins the message (e.g. "defaults" -> "defaults: speed must be a finite number, got 'fast'")."""
+    _check_keys(cls, data, where)
+    hints = typing.get_type_hints(cls)
+    for key, value in data.items():
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint) and isinstance(value, Mapping):
+            check_types(hint, value, f"{where}: {key}")
+        elif not _fits(hint, value):
+            raise ValueError(f"{where}: {key} must be {_describe(hint)}, got {value!r}")
+
+
+def _fits(hint, value) -> bool:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(a, value) for a in args)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and _finite(value)
+    if hint is str:
+        return isinstance(value, str)
+    if hint is dict or origin is dict:
+        return isinstance(value, Mapping) and (not args or all(
+            _fits(args[0], k) and _fits(args[1], v) for k, v in value.items()))
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            return False
+        if origin is list or args[-1] is Ellipsis:
+            return all(_fits(args[0], v) for v in value)
+        return len(value) == len(args) and all(_fits(a, v) for a, v in zip(args, value))
+    if dataclasses.is_dataclass(hint):
+        return False     # a section given a value (a mapping is checked by check_types)
+    return True          # no other kind of field is read from YAML
+
+
+def _finite(x: int | float) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:     # an int too large for a float
+        return False
+
+
+def _describe(hint) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in args)
+    if dataclasses.is_dataclass(hint):
+        return f"a section ({hint.__name__})"
+    if hint is dict or origin is dict:
+        return f"a mapping of {_describe(args[0])} to {_describe(args[1])}" if args else "a mapping"
+    if origin is list or (origin is tuple and args[-1] is Ellipsis):
+        return f"a list, each {_describe(args[0])}"
+    if origin is tuple:
+        return f"a list of {len(args)} ({', '.join(_describe(a) for a in args)})"
+    return {type(None): "null", bool: "true or false", int: "an integer", float: "a finite number",
+            str: "a string"}.get(hint, str(hint))
 
 
 def to_dict(cfg) -> dict:
