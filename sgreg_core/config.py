@@ -122,7 +122,7 @@ def _finite(x: int | float) -> bool:
 def _describe(hint) -> str:
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
-        return " or ".join(_describe(a) for a in args)
+        return ", or ".join(_describe(a) for a in args)
     if dataclasses.is_dataclass(hint):
         return f"a section ({hint.__name__})"
     if hint is dict or origin is dict:
