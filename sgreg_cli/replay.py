@@ -20,7 +20,7 @@ from sgreg_msgs.msg import RegistrationResult
 from tf2_msgs.msg import TFMessage
 
 from sgreg_core.bench.bandwidth import BandwidthMeter
-from sgreg_core.bench.replay_score import ResultRecord
+from sgreg_core.bench.replay_score import ResultRecord, check_ground_truth
 from sgreg_core.runtime.auth import AuthConfig, init_keystore
 from sgreg_ros.convert import transform_from_msg
 from sgreg_ros.qos import DIAGNOSTICS, RESULTS, TF
@@ -146,6 +146,9 @@ class _Sampler:
 
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     names = agents_in_bag(bag)
+    # a bag's ground truth (none: a recorded bag) is checked before any node starts
+    has_gt = (Path(bag) / "ground_truth.json").exists()
+    origin = ground_truth_of(bag).get("t_origin", 0.0) if has_gt else 0.0
     overrides = dict(cfg.overrides)
     keys = None
     if cfg.authenticate and "keystore" not in overrides:
@@ -153,13 +156,14 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
         init_keystore(keys.name, names)
         overrides["keystore"] = keys.name
     try:
-        return _run_replay(bag, cfg, names, overrides, log)
+        return _run_replay(bag, cfg, names, overrides, origin, log)
     finally:
         if keys is not None:
             keys.cleanup()
 
 
-def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) -> ReplayRun:
+def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origin: float,
+                log) -> ReplayRun:
     fleet = FleetCheck(overrides.get("keystore", ""))    # a bad keystore fails before any node starts
     procs = processes.start_agents(names, cfg.params_file or processes.DEFAULT_PARAMS, overrides, cfg.log_dir)
     sampler = _Sampler(procs)
@@ -282,8 +286,6 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
     report = play_result.get("report")
     if report is not None and report.clock is not None:
         # bag seconds (after the bag's t_origin, as its ground truth counts them) of each frame
-        gt_path = Path(bag) / "ground_truth.json"
-        origin = json.loads(gt_path.read_text()).get("t_origin", 0.0) if gt_path.exists() else 0.0
         wall0, bag0 = report.clock
         for r in records:
             r.bag_t = bag0 - origin + (t0 + r.t - wall0) * cfg.rate
@@ -298,7 +300,14 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, log) 
 
 
 def ground_truth_of(bag: str | Path) -> dict:
+    """The bag's ground_truth.json, checked (replay_score.check_ground_truth) before anything
+    is replayed or scored against it; BagError with a one-line reason."""
     path = Path(bag) / "ground_truth.json"
     if not path.exists():
         raise BagError(f"{bag} has no ground_truth.json (made by sgreg make-bag)")
-    return json.loads(path.read_text())
+    try:
+        return check_ground_truth(json.loads(path.read_text()))
+    except RecursionError:
+        raise BagError(f"{path}: malformed JSON (nested too deep)") from None
+    except (OSError, ValueError) as exc:     # JSON and text decoding errors are ValueErrors
+        raise BagError(f"{path}: {' '.join(str(exc).split())}") from None

@@ -7,8 +7,11 @@ Public API:
     param(default, help, low=None, high=None, choices=(), factory=None, live=False) -> dataclasses.Field
     node_params(cls) -> {field name: (default, help, low, high, choices, live)}
     from_dict(cls, data) / to_dict(cfg) / apply_overrides(data, ["a.b=1", ...])
-        from_dict checks each value against the field's type (numbers, strings, tuples,
-        optionals) and a `param` field's range or choices, naming the field
+        from_dict checks each value against its field's type (NaN never) and a `param`
+        field's range or choices, naming the field
+    check_types(cls, data, where) -> None   ValueError naming the first key of a (partial) dict
+                                            that is not a field of cls or whose value does not
+                                            fit the field's type (sections checked in turn)
 """
 from __future__ import annotations
 
@@ -49,10 +52,7 @@ def from_dict(cls, data: Mapping | None):
     keys are an error naming the class."""
     data = data or {}
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(data) - names
-    if unknown:
-        raise ValueError(f"{cls.__name__}: unknown keys {sorted(unknown)}")
+    _check_keys(cls, data, cls.__name__)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     kwargs = {}
     for key, value in data.items():
@@ -63,43 +63,15 @@ def from_dict(cls, data: Mapping | None):
                                  f"got {value!r}")
             value = from_dict(hint, value)
         else:
-            if not _fits(value, hint):
-                raise ValueError(f"{cls.__name__}.{key} must be {_name(hint)}, got {value!r}")
+            # infinity is a setting some configs take (a gate that never closes); NaN none
+            if not _fits(hint, value, finite=False):
+                raise ValueError(f"{cls.__name__}.{key} must be {_describe(hint, finite=False)}, "
+                                 f"got {value!r}")
             _check_range(cls, fields[key], value)
             if typing.get_origin(hint) is tuple:
                 value = tuple(value)
         kwargs[key] = value
     return cls(**kwargs)
-
-
-def _fits(value, hint) -> bool:
-    """Whether a value read from YAML / JSON / an override is of the field's type: an int
-    where a float is asked is taken, a bool for a number is not, NaN never (no setting means
-    "undefined"). Hints other than numbers, strings, tuples and optionals are not checked."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        return any(_fits(value, a) for a in args)
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
-    if hint is str:
-        return isinstance(value, str)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            return False
-        if len(args) == 2 and args[1] is Ellipsis:
-            return all(_fits(v, args[0]) for v in value)
-        return len(args) == len(value) and all(_fits(v, a) for v, a in zip(value, args))
-    return True
-
-
-def _name(hint) -> str:
-    return str(hint).replace("typing.", "") if typing.get_args(hint) else hint.__name__
 
 
 def _check_range(cls, f: dataclasses.Field, value) -> None:
@@ -113,6 +85,83 @@ def _check_range(cls, f: dataclasses.Field, value) -> None:
         raise ValueError(f"{cls.__name__}.{f.name} must lie in [{low}, {high}], got {value!r}")
     if choices and isinstance(value, str) and value not in choices:
         raise ValueError(f"{cls.__name__}.{f.name} must be one of {list(choices)}, got {value!r}")
+
+
+def _check_keys(cls, data: Mapping, where: str) -> None:
+    unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {sorted(map(str, unknown))}")
+
+
+def check_types(cls, data: Mapping, where: str) -> None:
+    """data as from YAML (lists for tuples, ints for floats) against dataclass cls; `where`
+    begins the message (e.g. "defaults" -> "defaults: speed must be a finite number, got 'fast'")."""
+    _check_keys(cls, data, where)
+    hints = typing.get_type_hints(cls)
+    for key, value in data.items():
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint) and isinstance(value, Mapping):
+            check_types(hint, value, f"{where}: {key}")
+        elif not _fits(hint, value):
+            raise ValueError(f"{where}: {key} must be {_describe(hint)}, got {value!r}")
+
+
+def _fits(hint, value, finite: bool = True) -> bool:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(a, value, finite) for a in args)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and (
+            _finite(value) if finite else not _nan(value))
+    if hint is str:
+        return isinstance(value, str)
+    if hint is dict or origin is dict:
+        return isinstance(value, Mapping) and (not args or all(
+            _fits(args[0], k, finite) and _fits(args[1], v, finite) for k, v in value.items()))
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            return False
+        if origin is list or args[-1] is Ellipsis:
+            return all(_fits(args[0], v, finite) for v in value)
+        return len(value) == len(args) and all(_fits(a, v, finite) for a, v in zip(args, value))
+    if dataclasses.is_dataclass(hint):
+        return False     # a section given a value (a mapping is checked by check_types)
+    return True          # no other kind of field is read from YAML
+
+
+def _finite(x: int | float) -> bool:
+    try:
+        return math.isfinite(x)
+    except OverflowError:     # an int too large for a float
+        return False
+
+
+def _nan(x: int | float) -> bool:
+    return isinstance(x, float) and math.isnan(x)
+
+
+def _describe(hint, finite: bool = True) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return ", or ".join(_describe(a, finite) for a in args)
+    if dataclasses.is_dataclass(hint):
+        return f"a section ({hint.__name__})"
+    if hint is dict or origin is dict:
+        return (f"a mapping of {_describe(args[0], finite)} to {_describe(args[1], finite)}"
+                if args else "a mapping")
+    if origin is list or (origin is tuple and args[-1] is Ellipsis):
+        return f"a list, each {_describe(args[0], finite)}"
+    if origin is tuple:
+        return f"a list of {len(args)} ({', '.join(_describe(a, finite) for a in args)})"
+    number = "a finite number" if finite else "a number"
+    return {type(None): "null", bool: "true or false", int: "an integer", float: number,
+            str: "a string"}.get(hint, str(hint))
 
 
 def to_dict(cfg) -> dict:

@@ -8,9 +8,12 @@ Public API:
                                           ground truth between their captures (relative)
     resolve(path) -> Path                 absolute, relative ones taken from REPO
     require(path, what) -> Path           resolve, or FileNotFoundError with a one-line reason
+    make_folder(path) -> Path             create an output folder (and its parents) and check it
+                                          is writable, or OSError with a one-line reason
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -28,4 +31,17 @@ def require(path: str | Path, what: str) -> Path:
     if not p.exists():
         raise FileNotFoundError(f"{what} {p} not found (relative paths start at the repository "
                                 f"{REPO}; the real scans are expected in ../shared/data next to it)")
+    return p
+
+
+def make_folder(path: str | Path) -> Path:
+    """Create folder `path` (as given: relative to the working directory) before the work whose
+    output goes there, so that an unusable one fails at once rather than after the work."""
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"cannot create folder {p}: {exc.strerror or exc}") from None
+    if not os.access(p, os.W_OK):
+        raise OSError(f"cannot write into folder {p}")
     return p

@@ -85,7 +85,6 @@ def _json_safe(v):
 
 def run(args: argparse.Namespace) -> int:
     import json
-    from pathlib import Path
 
     import torch
     from tqdm import tqdm
@@ -97,10 +96,12 @@ def run(args: argparse.Namespace) -> int:
     from sgreg_core.maps.instance_map import InstanceMapError
     from sgreg_core.config import to_dict
     from sgreg_core.net.model import load_model
+    from sgreg_core.paths import make_folder
     from sgreg_core.pipeline import warm_up
 
     try:
         cfg = _config(args)
+        out = make_folder(args.out)     # before the cases: an unusable --out loses no run
         model = None
         if any(m in cfg.methods for m in SGREG_METHODS):
             model = load_model(cfg.weights or None)
@@ -125,8 +126,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"times: {TIMING_NOTE}")
     print(machine.summary_line(host))
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     weights = {"weights": str(cfg.weights or "shipped"),
                "weights_id": model.weights_id if model is not None else None}
 

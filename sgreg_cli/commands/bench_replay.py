@@ -5,7 +5,8 @@ DIR/config.json, one DIR/bags/<bag>.json per bag, DIR/summary.png, and print the
 
 Per-bag results are cached: a bag whose result was made with the same bag spec, backend,
 weights, parameters and source code is not replayed again (--fresh replays everything), so an
-interrupted run resumes where it stopped.
+interrupted run resumes where it stopped. A bag made with other settings is made again; a folder
+in a bag's place that make-bag did not make is never replaced: the run stops and names it.
 
 Backends: "ros" (default) starts real nodes as separate processes over DDS, as `sgreg replay`;
 "offline" runs the same cores in one process on a virtual clock (sgreg_core/bench/offline_replay.py):
@@ -19,7 +20,7 @@ import hashlib
 import json
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 NAME = "bench-replay"
@@ -60,31 +61,54 @@ def _source_digest() -> str:
 
 
 def _ensure_bag(job, log) -> None:
-    """Make the job's bag unless one made from the same spec is there."""
+    """Make the job's bag unless one made from the same spec is there; replace one this suite
+    made with other settings, never anything else; check the ground truth of every bag."""
     import shutil
 
+    from sgreg_core.config import from_dict
     from sgreg_core.maps.instance_map import write_instance_map
     from sgreg_core.simulation.synth import SynthConfig, generate_scene
-    from .make_bag import BagSpec, make_bag
+    from ..replay import ground_truth_of
+    from .make_bag import BagSpec, BagSpecError, make_bag
 
     if job.spec is None:
-        if not (job.path / "ground_truth.json").exists():
-            raise FileNotFoundError(f"bag {job.path} (with ground_truth.json) not found")
+        ground_truth_of(job.path)
         return
     spec = BagSpec(**{k: tuple(v) if k in ("start_a", "start_b") and v is not None else v
                       for k, v in job.spec.items()})
-    gt_path = job.path / "ground_truth.json"
-    if gt_path.exists() and json.loads(gt_path.read_text()).get("config") == json.loads(json.dumps(asdict(spec))):
-        return
+    wanted = json.loads(json.dumps(asdict(spec)))
+    if job.path.exists():
+        made = _made_with(job.path)
+        if made == wanted:
+            ground_truth_of(job.path)
+            return
+        if made is None:
+            raise BagSpecError(f"{job.path} is in the way: not a bag made by sgreg make-bag (no "
+                               "ground_truth.json with its config); move it or choose another bag_dir")
+        changed = sorted(k for k in made.keys() | wanted.keys() if made.get(k) != wanted.get(k))
+        log(f"replacing {job.name}: made with other settings ({', '.join(changed)})")
+        shutil.rmtree(job.path)
     if job.synth is not None and not Path(spec.scan, "points.npy").exists():
         settings = dict(job.synth)
         seed = int(settings.pop("seed", 0))
-        write_instance_map(generate_scene(seed, SynthConfig(**settings)), spec.scan)
-    if job.path.exists():
-        shutil.rmtree(job.path)
+        write_instance_map(generate_scene(seed, from_dict(SynthConfig, settings)), spec.scan)
     job.path.parent.mkdir(parents=True, exist_ok=True)
     log(f"making {job.name}")
     make_bag(spec, job.path)
+
+
+def _made_with(path: Path) -> dict | None:
+    """The make-bag config in a bag's ground_truth.json (None: not a bag made by make-bag, so
+    not this suite's to replace)."""
+    from .make_bag import BagSpec
+
+    try:
+        doc = json.loads((path / "ground_truth.json").read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    config = doc.get("config") if isinstance(doc, dict) else None
+    known = {f.name for f in fields(BagSpec)}
+    return config if isinstance(config, dict) and "scan" in config and set(config) <= known else None
 
 
 def _offline_config(overrides: list[str]):
@@ -100,7 +124,9 @@ def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
     from sgreg_core.bench.replay_score import score_replay
     from sgreg_core.bench.replay_report import replay_report
 
-    gt = json.loads((job.path / "ground_truth.json").read_text())
+    from ..replay import ground_truth_of
+
+    gt = ground_truth_of(job.path)
     if backend == "offline":
         from ..bags import instance_maps_in_bag
 
@@ -131,10 +157,11 @@ def run(args: argparse.Namespace) -> int:
                                                reliability, summarize)
     from sgreg_core.maps.instance_map import InstanceMapError
     from sgreg_core.config import to_dict
-    from .make_bag import BagSpecError
+    from sgreg_core.paths import make_folder
+    from .make_bag import BagSpec, BagSpecError
 
     try:
-        suite = load_suite(args.suite, args.seeds)
+        suite = load_suite(args.suite, args.seeds, bag_spec=BagSpec)
     except SuiteError as exc:
         print(f"sgreg bench-replay: {exc}", file=sys.stderr)
         return 2
@@ -153,7 +180,17 @@ def run(args: argparse.Namespace) -> int:
         return 2
     seeds = f"_seeds{'-'.join(map(str, args.seeds))}" if args.seeds else ""
     out = Path(args.out or f"results/bench_replay_{suite.name}{seeds}" + ("_offline" if args.backend == "offline" else ""))
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        make_folder(out)
+    except OSError as exc:
+        print(f"sgreg bench-replay: --out: {exc}", file=sys.stderr)
+        return 2
+    try:
+        params = Path(args.params_file).read_bytes() if args.params_file else b""
+    except OSError as exc:
+        print(f"sgreg bench-replay: cannot read --params-file {args.params_file}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 2
 
     def log(s: str) -> None:
         print(f"[bench-replay] {s}", flush=True)
@@ -171,8 +208,11 @@ def run(args: argparse.Namespace) -> int:
 
     from sgreg_core.net.model import load_model
 
-    model = load_model(args.weights)
-    params = Path(args.params_file).read_bytes() if args.params_file else b""
+    try:
+        model = load_model(args.weights)
+    except (OSError, RuntimeError, ValueError) as exc:
+        print(f"sgreg bench-replay: cannot load weights: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
     context = {"backend": args.backend, "weights_id": model.weights_id, "source": _source_digest(),
                "params": hashlib.sha256(params).hexdigest()[:16], "overrides": args.overrides}
     if args.backend == "offline":

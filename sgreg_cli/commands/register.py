@@ -2,14 +2,16 @@
 [--set KEY=VALUE ...]`: register two instance map directories with SG-Reg (sgreg_core.pipeline);
 --set overrides a PipelineConfig entry (e.g. pose.footprint_rim=1; coarse_pose.* with --coarse).
 `sgreg register --pairs FILE [--json OUT]`: many pairs (one "SRC_DIR REF_DIR" per line), the
-model loaded once; --json then writes a list of results, and a pair with bad input is an
-entry with an "error" instead of the end of the run.
+model loaded once; --json then writes a list of results, and a pair with bad input (or one
+that fails in the pipeline) is an entry with an "error" instead of the end of the run.
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
 fitness, node pairs). Exit status: 0 registered, 1 not registered (the result is still
 printed and written), 2 bad input (one line on stderr). timing_ms covers the registration
 (graphs, encoding, matching, pose); loading the network and the text encoder is startup_ms.
+--png is checked before registering and drawn after --json is written, so that a picture that
+cannot be drawn loses no result.
 """
 from __future__ import annotations
 
@@ -18,6 +20,8 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from sgreg_core.pipeline import PipelineConfig
 
 NAME = "register"
@@ -74,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.net.model import load_model
     from sgreg_core.pipeline import warm_up
+    from sgreg_core.plots import figure_path
 
     one_pair = bool(args.src_dir and args.ref_dir)
     if one_pair == bool(args.pairs) or (args.src_dir and not one_pair):
@@ -88,6 +93,11 @@ def run(args: argparse.Namespace) -> int:
         cfg = pipeline_config(args)
     except (TypeError, ValueError) as exc:
         return _fail(f"--set: {exc}")
+    try:
+        if args.png:
+            figure_path(args.png)
+    except (OSError, ValueError) as exc:
+        return _fail(f"--png: {exc}")
     torch.set_num_threads(max(1, args.threads))
     t0 = time.perf_counter()
     try:
@@ -104,17 +114,25 @@ def run(args: argparse.Namespace) -> int:
         except InstanceMapError as exc:
             if not args.pairs:
                 return _fail(str(exc))
-            print(f"{src_dir} -> {ref_dir}: bad input: {exc}", file=sys.stderr)
-            results.append({"src": src_dir, "ref": ref_dir, "success": False, "error": str(exc)})
+            results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc)))
             codes.append(2)
             continue
-        result = _register_one(model, cfg, src_dir, ref_dir, *maps, startup_ms, args, single=not args.pairs)
+        try:
+            result, draw = _register_one(model, cfg, src_dir, ref_dir, *maps, startup_ms,
+                                         single=not args.pairs)
+        except Exception as exc:
+            if not args.pairs:
+                raise
+            # one pair that breaks the pipeline must not lose the results of the others
+            results.append(_pair_error(src_dir, ref_dir, "failed", f"{type(exc).__name__}: {exc}"))
+            codes.append(2)
+            continue
         results.append(result)
         codes.append(0 if result["success"] else 1)
     if args.pairs:
         ok = sum(c == 0 for c in codes)
-        print(f"{ok} of {len(pairs)} pairs registered ({codes.count(2)} with bad input); model loaded "
-              f"once in {startup_ms:.0f} ms")
+        print(f"{ok} of {len(pairs)} pairs registered ({codes.count(2)} with bad input or failed); "
+              f"model loaded once in {startup_ms:.0f} ms")
     if args.json_out:
         out = Path(args.json_out)
         try:
@@ -122,7 +140,18 @@ def run(args: argparse.Namespace) -> int:
             out.write_text(json.dumps(results if args.pairs else results[0], indent=1) + "\n")
         except OSError as exc:
             return _fail(f"cannot write {out}: {exc.strerror or exc}")
+    if args.png:
+        try:
+            draw(args.png)
+        except (OSError, ValueError, RuntimeError) as exc:
+            return _fail(f"cannot draw {args.png}: {' '.join(str(exc).split())}")
     return max(codes)
+
+
+def _pair_error(src_dir: str, ref_dir: str, what: str, message: str) -> dict:
+    """The --pairs entry of a pair that was not registered, said on stderr too."""
+    print(f"{src_dir} -> {ref_dir}: {what}: {message}", file=sys.stderr)
+    return {"src": src_dir, "ref": ref_dir, "success": False, "error": message}
 
 
 def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
@@ -135,10 +164,14 @@ def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     return from_dict(PipelineConfig, apply_overrides(data, args.overrides))
 
 
-def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms, args, single) -> dict:
+def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms,
+                  single) -> tuple[dict, Callable[[str], None]]:
+    """The result of one pair, and what draws it (a path -> the picture)."""
+    from functools import partial
+
     import numpy as np
 
-    from sgreg_core.pipeline import build_graphs, node_cloud, register_graphs
+    from sgreg_core.pipeline import build_graphs, register_graphs
 
     timings: dict = {}
     src_graph, ref_graph = build_graphs(src_map, ref_map, cfg, timings)
@@ -148,10 +181,11 @@ def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms, ar
               "nodes": {"src": src_graph.num_nodes, "ref": ref_graph.num_nodes},
               "startup_ms": round(startup_ms, 1)}
     verdict = "registered" if reg.success else f"NOT registered ({reg.reason})"
+    draw = partial(_draw, src_graph, ref_graph, reg, verdict)
     if not single:
         print(f"{src_dir} -> {ref_dir}: {verdict}, {reg.inliers} inliers, confidence "
               f"{reg.confidence:.2f}, {reg.timing_ms['total']:.0f} ms")
-        return result
+        return result, draw
     with np.printoptions(precision=6, suppress=True):
         print(f"T (SRC -> REF):\n{np.asarray(reg.T)}")
     print(f"{verdict}: {reg.mode}, {reg.node_matches} node matches, {reg.correspondences} "
@@ -162,14 +196,16 @@ def _register_one(model, cfg, src_dir, ref_dir, src_map, ref_map, startup_ms, ar
     if reg.levelling:
         print("levelled: " + ", ".join(f"{k} tilted {v['tilt_deg']:.2f} deg" + ("" if v["ok"] else
                                        f" (left as it is: {v['reason']})") for k, v in reg.levelling.items()))
-    if args.png:
-        from sgreg_core.plots.registration import plot_registration
+    return result, draw
 
-        lookup = [{int(i): k for k, i in enumerate(g.node_ids)} for g in (src_graph, ref_graph)]
-        si = [lookup[0][int(i)] for i in reg.node_pairs[:, 0]]
-        ri = [lookup[1][int(i)] for i in reg.node_pairs[:, 1]]
-        plot_registration(node_cloud(src_graph), node_cloud(ref_graph), reg.T_levelled, args.png,
-                          src_graph.centers[si], ref_graph.centers[ri],
-                          title=f"{verdict}: {reg.node_matches} node matches, "
-                                f"{reg.inliers} inliers")
-    return result
+
+def _draw(src_graph, ref_graph, reg, verdict: str, png: str) -> None:
+    from sgreg_core.pipeline import node_cloud
+    from sgreg_core.plots.registration import plot_registration
+
+    lookup = [{int(i): k for k, i in enumerate(g.node_ids)} for g in (src_graph, ref_graph)]
+    si = [lookup[0][int(i)] for i in reg.node_pairs[:, 0]]
+    ri = [lookup[1][int(i)] for i in reg.node_pairs[:, 1]]
+    plot_registration(node_cloud(src_graph), node_cloud(ref_graph), reg.T_levelled, png,
+                      src_graph.centers[si], ref_graph.centers[ri],
+                      title=f"{verdict}: {reg.node_matches} node matches, {reg.inliers} inliers")

@@ -41,12 +41,16 @@ def run(args) -> int:
                                                 replay_report)
     from sgreg_core.bench.replay_score import ground_truth, score_replay
     from sgreg_core.metrics import rre, rte
+    from sgreg_core.paths import make_folder
+    from sgreg_core.plots import figure_path
 
     out_json = Path(args.json)
-    out_json.parent.mkdir(parents=True, exist_ok=True)
     try:
+        make_folder(out_json.parent)
+        if args.png:
+            figure_path(args.png)
         gt = ground_truth_of(args.bag)
-    except BagError as exc:
+    except (BagError, OSError, ValueError) as exc:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
     restart = None

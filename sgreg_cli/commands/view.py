@@ -21,20 +21,22 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    import json
-
     import numpy as np
 
     from sgreg_core.geometry import invert_transform
     from sgreg_core.plots.merged import plot_merged_map
     from sgreg_core.runtime.merge import MergeConfig
 
+    from sgreg_core.plots import figure_path
+
     from ..bags import BagError, final_maps, tf_in_bag
+    from ..replay import ground_truth_of
 
     bag = Path(args.bag)
-    gt_path = bag / "ground_truth.json"
     try:
-        gt = json.loads(gt_path.read_text()) if gt_path.exists() else None
+        figure_path(args.png)
+        # a made bag's ground truth; a recorded one has none
+        gt = ground_truth_of(bag) if (bag / "ground_truth.json").exists() else None
         clouds = final_maps(bag, gt)
         tf = tf_in_bag(bag)
     except (BagError, OSError, ValueError) as exc:
@@ -56,7 +58,6 @@ def run(args) -> int:
         print(f"sgreg view: {bag} has neither a recorded /tf in frame {frame} nor ground_truth.json",
               file=sys.stderr)
         return 2
-    Path(args.png).parent.mkdir(parents=True, exist_ok=True)
     plot_merged_map(clouds, poses, args.png, title=f"{bag.name}: {len(clouds)} agents, {source}")
     print(f"{len(clouds)} agents ({', '.join(sorted(clouds))}), {source}: {args.png}")
     return 0

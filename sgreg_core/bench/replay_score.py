@@ -12,11 +12,12 @@ peer), from the link's first registrable frame.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..geometry import invert_transform
+from ..geometry import invert_transform, is_rigid
 from ..metrics import rre, rte, two_agent_success
 
 MIN_SHARED_OBJECTS = 3
@@ -85,6 +86,39 @@ class ReplayScore:
 def ground_truth(T_scene_map: dict, agent: str, peer: str) -> np.ndarray:
     """T_agent^peer from each agent's map frame in the scene frame."""
     return invert_transform(np.asarray(T_scene_map[peer])) @ np.asarray(T_scene_map[agent])
+
+
+def check_ground_truth(gt) -> dict:
+    """gt (a bag's ground_truth.json, parsed), once it holds what scoring reads: T_scene_map, a
+    rigid 4x4 per agent; t_origin (optional) a finite number; objects (optional) per agent a
+    list of [t, ids]. ValueError naming the first entry that does not."""
+    if not isinstance(gt, dict):
+        raise ValueError(f"expected a JSON object, got {type(gt).__name__}")
+    maps = gt.get("T_scene_map")
+    if not isinstance(maps, dict) or not maps:
+        raise ValueError("T_scene_map: expected an object of agent -> 4x4 transform")
+    bad = sorted(str(a) for a, T in maps.items() if not is_rigid(T))
+    if bad:
+        raise ValueError(f"T_scene_map of {', '.join(bad)}: not a rigid 4x4 transform")
+    if not _number(gt.get("t_origin", 0.0)):
+        raise ValueError(f"t_origin: expected a number, got {gt['t_origin']!r}")
+    objects = gt.get("objects")
+    if objects is not None and not (isinstance(objects, dict) and all(
+            isinstance(snaps, list) and all(_snapshot(s) for s in snaps) for snaps in objects.values())):
+        raise ValueError("objects: expected per agent a list of [t, ids]")
+    return gt
+
+
+def _number(x) -> bool:
+    try:
+        return not isinstance(x, bool) and math.isfinite(x)
+    except (TypeError, OverflowError):    # not a number; an int too large for a float
+        return False
+
+
+def _snapshot(s) -> bool:
+    return (isinstance(s, list) and len(s) == 2 and _number(s[0]) and isinstance(s[1], list)
+            and all(isinstance(i, int) and not isinstance(i, bool) for i in s[1]))
 
 
 def shared_objects(objects: dict, agent: str, peer: str, bag_t: float) -> int:

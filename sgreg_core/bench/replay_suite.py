@@ -17,16 +17,22 @@ A suite file (see bench/suites/*.yaml):
       - scan: scans/scannet-picwoon_scene0000_00
       - {scan: scans/scannet-picwoon_scene0003_00, scan_b: scans/scannet-picwoon_scene0003_01,
          gt: rescan_gt.json}
-      - synth: {kind: office, rooms: 5, seed: 4}  # a synthetic scene made first
+      - synth: {kind: office, rooms: 5, seed: 4}  # a synthetic scene made first (any
+                                                  # simulation.synth.SynthConfig setting)
     bags:                             # bags taken as they are (paths relative to the file)
       - ../../../bags/apartment_opposite
 
 Public API:
     BagJob                        one bag of a suite: name, how to make it (or its path), tags
     Suite                         name, jobs, held-out rooms, directories
-    load_suite(path, seeds=None) -> Suite    raises SuiteError with a one-line reason; seeds:
-                                  walk seeds instead of the file's (cases nothing was chosen
-                                  on), without the bags the file takes as they are
+    load_suite(path, seeds=None, bag_spec=None) -> Suite    raises SuiteError with a one-line
+                                  reason (a key not known or a value of the wrong type is named);
+                                  seeds: walk seeds instead of the file's (cases nothing was
+                                  chosen on), without the bags the file takes as they are;
+                                  bag_spec: the dataclass of make-bag settings
+                                  (commands.make_bag.BagSpec) that defaults, walks and scans
+                                  entries are checked against; a synthetic scene's folder
+                                  (and so its bags' names and specs) names every setting
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
@@ -37,6 +43,7 @@ Public API:
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from collections import Counter
@@ -45,11 +52,36 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import check_types, from_dict, to_dict
+from ..simulation.synth import SynthConfig
+
 SCENE = re.compile(r"(scene\d{4})_\d{2}")
 
 
 class SuiteError(ValueError):
     """A suite file that cannot be used; the message says why in one line."""
+
+
+@dataclass
+class _SuiteFile:
+    """The keys of a suite file and what each holds (null: left out)."""
+
+    name: str | None = None
+    data: str | None = None
+    bag_dir: str | None = None
+    held_out: list[str] | None = None
+    seeds: list[int] | None = None
+    defaults: dict | None = None
+    walks: dict[str, dict] | None = None
+    scans: list[dict] | None = None
+    bags: list[str] | None = None
+
+
+@dataclass
+class _SynthScene(SynthConfig):
+    """A scans entry's synth settings: the generator's and its seed."""
+
+    seed: int = 0
 
 
 @dataclass
@@ -115,7 +147,31 @@ def _short(scan: str) -> str:
     return m.group(0) if m else Path(scan).name
 
 
-def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
+def _synth_scene(settings: dict) -> tuple[str, str]:
+    """(folder name, room) of the synthetic scene of a scans entry's synth settings (checked):
+    the room is kind, rooms and seed (as held_out names it); the folder adds a digest of the
+    settings that differ from SynthConfig's defaults, so that a changed setting is a new scene
+    and bag, and a suite that sets none of them keeps its names."""
+    scene = from_dict(_SynthScene, settings)
+    room = f"synth_{scene.kind}{scene.rooms}_{scene.seed}"
+    default = to_dict(_SynthScene(seed=scene.seed))
+    changed = {k: v for k, v in to_dict(scene).items() if v != default[k] and k not in ("kind", "rooms")}
+    if not changed:
+        return room, room
+    digest = hashlib.sha256(json.dumps(changed, sort_keys=True).encode()).hexdigest()[:8]
+    return f"{room}_{digest}", room
+
+
+def _checked(cls, data, where: str) -> dict:
+    """data, once every key is a field of cls and every value fits its type."""
+    try:
+        check_types(cls, data, where)
+    except ValueError as exc:
+        raise SuiteError(str(exc)) from None
+    return data
+
+
+def load_suite(path: str | Path, seeds: list[int] | None = None, bag_spec: type | None = None) -> Suite:
     import yaml
 
     path = Path(path)
@@ -125,34 +181,40 @@ def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
         raise SuiteError(f"cannot read suite {path}: {exc}") from None
     if not isinstance(doc, dict):
         raise SuiteError(f"suite {path} is not a mapping")
-    unknown = set(doc) - {"name", "data", "bag_dir", "held_out", "seeds", "defaults", "walks",
-                          "scans", "bags"}
-    if unknown:
-        raise SuiteError(f"suite {path}: unknown keys {sorted(unknown)}")
+    where = f"suite {path}"
+    _checked(_SuiteFile, doc, where)
+
+    def spec_part(data, part: str) -> dict:
+        """make-bag settings of the suite, checked where the dataclass of them is known."""
+        return dict(_checked(bag_spec, data, f"{where}: {part}") if bag_spec else data)
+
     base = path.parent
-    data = (base / doc.get("data", ".")).resolve()
-    bag_dir = (base / doc.get("bag_dir", f"generated/{path.stem}")).resolve()
+    data = (base / (doc.get("data") or ".")).resolve()
+    bag_dir = (base / (doc.get("bag_dir") or f"generated/{path.stem}")).resolve()
     walk_seeds = list(seeds or doc.get("seeds") or [0])
-    walks = doc.get("walks") or {"default": {}}
-    defaults = dict(doc.get("defaults") or {})
+    walks = {w: spec_part(v, f"walks: {w}") for w, v in (doc.get("walks") or {"default": {}}).items()}
+    defaults = spec_part(doc.get("defaults") or {}, "defaults")
     jobs: list[BagJob] = []
-    for entry in doc.get("scans") or []:
-        if not isinstance(entry, dict) or not ({"scan", "synth"} & set(entry)):
-            raise SuiteError(f"suite {path}: a scans entry needs 'scan' or 'synth', got {entry!r}")
+    for i, entry in enumerate(doc.get("scans") or []):
+        if not ({"scan", "synth"} & set(entry)):
+            raise SuiteError(f"{where}: a scans entry needs 'scan' or 'synth', got {entry!r}")
         synth = entry.get("synth")
-        if synth is not None:
-            stem = f"synth_{synth.get('kind', 'apartment')}{synth.get('rooms', 1)}_{synth.get('seed', 0)}"
-            scan, capture, room = str(bag_dir / "scenes" / stem), "synthetic", stem
+        extra = spec_part({k: v for k, v in entry.items() if k != "synth"}, f"scans[{i}]")
+        extra.pop("scan", None)
+        if "synth" in entry:
+            if not isinstance(synth, dict):
+                raise SuiteError(f"{where}: scans[{i}]: synth must be a mapping, got {synth!r}")
+            stem, room = _synth_scene(_checked(_SynthScene, synth, f"{where}: scans[{i}]: synth"))
+            scan, capture = str(bag_dir / "scenes" / stem), "synthetic"
         else:
             scan = str(data / entry["scan"])
             capture = "cross" if entry.get("scan_b") else "single"
             room = room_of(scan)
             stem = _short(scan) + (f"x{_short(entry['scan_b'])[-2:]}" if entry.get("scan_b") else "")
             if not Path(scan).exists():
-                raise SuiteError(f"suite {path}: scan {scan} not found (is {data} the data folder?)")
-        extra = {k: v for k, v in entry.items() if k not in ("scan", "synth")}
+                raise SuiteError(f"{where}: scan {scan} not found (is {data} the data folder?)")
         for key in ("scan_b", "gt"):
-            if key in extra:
+            if extra.get(key) is not None:
                 extra[key] = str(data / extra[key])
         for walk, walk_settings in walks.items():
             for seed in walk_seeds:
@@ -165,10 +227,10 @@ def load_suite(path: str | Path, seeds: list[int] | None = None) -> Suite:
         jobs.append(BagJob(bag.name, bag, room=bag.name, capture="synthetic", walk="shipped"))
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
-        raise SuiteError(f"suite {path}: two bags share a name")
+        raise SuiteError(f"{where}: two bags share a name")
     if not jobs:
-        raise SuiteError(f"suite {path} names no bags")
-    return Suite(doc.get("name", path.stem), path, jobs, tuple(doc.get("held_out") or ()), bag_dir)
+        raise SuiteError(f"{where} names no bags")
+    return Suite(doc.get("name") or path.stem, path, jobs, tuple(doc.get("held_out") or ()), bag_dir)
 
 
 # ---- summary --------------------------------------------------------------------------------

@@ -98,9 +98,13 @@ def _load_npy(path: Path) -> np.ndarray:
     if not path.is_file():
         raise InstanceMapError(f"{path}: missing file")
     try:
-        return np.load(path, allow_pickle=False)
+        data = np.load(path, allow_pickle=False)
     except Exception as exc:  # numpy raises several types for corrupt files
         raise InstanceMapError(f"{path}: not a readable .npy file ({type(exc).__name__})") from None
+    if not isinstance(data, np.ndarray):
+        data.close()   # np.load opens an .npz archive whatever the file's name
+        raise InstanceMapError(f"{path}: an .npz archive, not an .npy array")
+    return data
 
 
 _INT32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))

@@ -56,6 +56,12 @@ def _corrupt(tmp_path, fn):
     return msg
 
 
+def _as_npz(path):
+    """An .npz archive under an .npy name (np.load opens it whatever it is called)."""
+    with open(path, "wb") as f:
+        np.savez(f, np.zeros((100, 3), np.float32))
+
+
 @pytest.mark.parametrize("fn, needle", [
     (lambda d: (d / "points.npy").unlink(), "points.npy: missing file"),
     (lambda d: (d / "instances.json").unlink(), "instances.json: missing file"),
@@ -72,6 +78,7 @@ def _corrupt(tmp_path, fn):
     (lambda d: (d / "instances.json").write_text('[{"id": 9, "label": "a"}]'), "no labelled point"),
     (lambda d: np.save(d / "points.npy", np.zeros((0, 3), np.float32)), "instance.npy"),
     (lambda d: (d / "points.npy").write_bytes(b"garbage"), "not a readable"),
+    (lambda d: _as_npz(d / "points.npy"), "an .npz archive"),
     (lambda d: (d / "instances.json").write_text('[{"id": 9223372036854775808, "label": "a"}]'), "beyond int32"),
     (lambda d: (d / "instances.json").write_text('[{"id": 1, "label": "a", "score": 1' + "0" * 400 + '}]'),
      "non-numeric score"),

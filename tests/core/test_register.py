@@ -3,10 +3,12 @@ weights: the result JSON contract, exit codes on bad input, coarse mode, the pic
 different rooms refused, and the benchmark's output schema."""
 import argparse
 import json
+import shutil
 
 import numpy as np
 import pytest
 
+from sgreg_cli.commands import register as register_cmd
 from sgreg_cli.commands.register import pipeline_config
 from sgreg_cli.main import main
 from sgreg_core.maps.instance_map import write_instance_map
@@ -146,6 +148,59 @@ def test_many_pairs_load_the_model_once(data, tmp_path, capsys):
     assert "give SRC_DIR REF_DIR, or --pairs FILE" in capsys.readouterr().err
 
 
+def test_one_broken_pair_loses_no_other_result(data, tmp_path, capsys, monkeypatch):
+    """A points.npy that is an .npz archive is bad input of its pair; a pair that fails in the
+    pipeline is reported as that pair's error; the other pairs are still written."""
+    root, _ = data
+    npz = tmp_path / "npz"
+    shutil.copytree(root / "src", npz)
+    with open(npz / "points.npy", "wb") as f:
+        np.savez(f, np.load(root / "src" / "points.npy"))
+    register_one = register_cmd._register_one
+
+    def breaks_on_other(*args, **kwargs):
+        if args[3].endswith("other"):
+            raise RuntimeError("a bug in the pipeline")
+        return register_one(*args, **kwargs)
+
+    monkeypatch.setattr(register_cmd, "_register_one", breaks_on_other)
+    listing = tmp_path / "pairs.txt"
+    listing.write_text(f"{root / 'src'} {root / 'ref'}\n{npz} {root / 'ref'}\n"
+                       f"{root / 'src'} {root / 'other'}\n")
+    out = tmp_path / "all.json"
+    assert main(["register", "--pairs", str(listing), "--json", str(out)]) == 2
+    results = json.loads(out.read_text())
+    assert [r["success"] for r in results] == [True, False, False]
+    assert "an .npz archive" in results[1]["error"] and "a bug in the pipeline" in results[2]["error"]
+    err = capsys.readouterr().err
+    assert "bad input" in err and "failed: RuntimeError" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("png", ["r.txt", "a_file/r.png"])
+def test_a_picture_that_cannot_be_written_is_refused_before_registering(data, tmp_path, capsys, png):
+    root, _ = data
+    (tmp_path / "a_file").write_text("not a folder")
+    code = main(["register", str(root / "src"), str(root / "ref"), "--png", str(tmp_path / png),
+                 "--json", str(tmp_path / "o.json")])
+    out, err = capsys.readouterr()
+    assert code == 2 and err.startswith("sgreg register: --png: ") and err.count("\n") == 1
+    assert "T (SRC -> REF)" not in out and not (tmp_path / "o.json").exists()
+
+
+def test_a_failed_picture_keeps_the_result(data, tmp_path, capsys, monkeypatch):
+    import sgreg_core.plots.registration as plots
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(plots, "plot_registration", disk_full)
+    root, _ = data
+    code, res = _register(root, "src", "ref", "--png", str(tmp_path / "r.png"))
+    err = capsys.readouterr().err
+    assert code == 2 and res["success"] and err.startswith("sgreg register: cannot draw ")
+    assert err.count("\n") == 1
+
+
 def test_tiny_graphs_are_refused_without_matching():
     graph = toy_graph(np.random.default_rng(0), n=2)
     reg = register_graphs(load_model(), graph, graph, PipelineConfig())
@@ -195,3 +250,12 @@ def test_bench_register_schema(tmp_path, capsys):
             assert row["success"] is False and row["false_claim"] == row["claimed"]
     # sgreg never claims a wrong answer on these
     assert all(not r["false_claim"] for r in results["rows"] if r["method"].startswith("sgreg"))
+
+
+def test_bench_register_refuses_an_unusable_out_before_any_case(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("not a folder")
+    code = main(["bench-register", "--scans", str(tmp_path / "no_scans"), "--methods", "kiss_matcher",
+                 "--out", str(tmp_path / "a_file" / "bench"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("sgreg bench-register: cannot create folder ")
+    assert err.count("\n") == 1

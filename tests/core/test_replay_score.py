@@ -1,8 +1,11 @@
 """Scoring of replay results against ground truth, on hand-made records."""
+import json
+
 import numpy as np
+import pytest
 
 from sgreg_core.geometry import invert_transform, yaw_transform
-from sgreg_core.bench.replay_score import ResultRecord, ground_truth, score_replay
+from sgreg_core.bench.replay_score import ResultRecord, check_ground_truth, ground_truth, score_replay
 
 FRAMES = {"a": yaw_transform(0.3, (1.0, 2.0, 0.0)), "b": yaw_transform(-1.2, (-4.0, 0.5, 0.2))}
 
@@ -87,3 +90,32 @@ def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():
     assert tl["seconds"] == 8.0
     assert merge_timeline([r for r in records if r.T is not off], FRAMES)["wrong_s"] == 0.0
     assert merge_timeline([], FRAMES) == {"seconds": 0.0, "wrong_s": 0.0, "wrong_windows": []}
+
+
+def gt_with(**changes):
+    """A well-formed ground truth of FRAMES, with top-level entries changed (None: left out)."""
+    gt = {"T_scene_map": {a: T.tolist() for a, T in FRAMES.items()}, "t_origin": 1.7e9,
+          "objects": {"a": [[0.0, [1, 2]], [1.0, [1, 2, 3]]], "b": []}}
+    gt.update(changes)
+    return {k: v for k, v in gt.items() if v is not None}
+
+
+def test_a_well_formed_ground_truth_is_taken_as_it_is():
+    assert check_ground_truth(gt_with()) == gt_with()
+    assert check_ground_truth(gt_with(t_origin=None, objects=None)) == gt_with(t_origin=None, objects=None)
+
+
+@pytest.mark.parametrize("gt, words", [
+    ([], "expected a JSON object, got list"),
+    (gt_with(T_scene_map=None), "T_scene_map: expected"),
+    (gt_with(T_scene_map=[]), "T_scene_map: expected"),
+    (gt_with(T_scene_map={"a": np.eye(4).tolist(), "b": (2 * np.eye(4)).tolist()}), "T_scene_map of b: not a rigid"),
+    (gt_with(T_scene_map={"a": "x"}), "T_scene_map of a: not a rigid"),
+    (gt_with(t_origin="now"), "t_origin"),
+    (gt_with(t_origin=10 ** 400), "t_origin"),
+    (gt_with(objects=[1]), "objects"),
+    (gt_with(objects={"a": [[0.0, [[1]]]]}), "objects"),
+])
+def test_a_ground_truth_scoring_cannot_read_is_refused_by_name(gt, words):
+    with pytest.raises(ValueError, match=words):
+        check_ground_truth(gt)

@@ -1,9 +1,15 @@
 """Replay suite files: expansion into bags, their tags, one-line refusals, and the summary."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from sgreg_cli.commands.make_bag import BagSpec
+
 from sgreg_core.bench.replay_suite import (ResultCache, SuiteError, format_summary, load_suite,
                                            reliability, summarize)
+
+SUITES = Path(__file__).resolve().parents[2] / "config" / "suites"
 
 
 def write(tmp_path, text):
@@ -56,6 +62,60 @@ def test_every_scan_is_made_per_walk_and_seed(tmp_path):
 def test_bad_suites_are_refused_in_one_line(tmp_path, text, words):
     with pytest.raises(SuiteError, match=words):
         load_suite(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("text,words", [
+    ("data: 5\nscans: [{scan: s}]\n", "data must be a string"),
+    ("bags: [5]\n", "bags must be a list, each a string"),
+    ("seeds: 3\nscans: [{synth: {}}]\n", "seeds must be a list"),
+    ("seeds: [abc]\nscans: [{synth: {}}]\n", "seeds must be a list, each an integer"),
+    ("held_out: 5\nscans: [{synth: {}}]\n", "held_out must be a list"),
+    ("walks: [a, b]\nscans: [{synth: {}}]\n", "walks must be a mapping"),
+    ("defaults: [1]\nscans: [{synth: {}}]\n", "defaults must be a mapping"),
+    ("scans: [5]\n", "scans must be a list, each a mapping"),
+    ("scans: [{synth: 5}]\n", r"scans\[0\]: synth must be a mapping"),
+    ("scans: [{synth: null}]\n", r"scans\[0\]: synth must be a mapping"),
+    ("scans: [{synth: {roomz: 2}}]\n", r"scans\[0\]: synth: unknown keys \['roomz'\]"),
+    ("scans: [{synth: {rooms: two}}]\n", r"synth: rooms must be an integer, got 'two'"),
+    ("scans: [{synth: {seed: 1.5}}]\n", r"synth: seed must be an integer"),
+    ("scans: [{synth: {noise: {drop: x}}}]\n", r"synth: noise: drop must be a finite number"),
+    ("defaults: {speeed: 1}\nscans: [{synth: {}}]\n", r"defaults: unknown keys \['speeed'\]"),
+    ("defaults: {speed: fast}\nscans: [{synth: {}}]\n", "defaults: speed must be a finite number, got 'fast'"),
+    ("walks: {w: {opposite: 1}}\nscans: [{synth: {}}]\n", "walks: w: opposite must be true or false"),
+    ("scans: [{synth: {}, start_a: [1]}]\n", r"scans\[0\]: start_a must be a list of 2"),
+    ("scans: [{scan: 5}]\n", r"scans\[0\]: scan must be a string"),
+])
+def test_values_of_the_wrong_type_and_unknown_keys_are_refused_by_name(tmp_path, text, words):
+    with pytest.raises(SuiteError, match=words):
+        load_suite(write(tmp_path, text), bag_spec=BagSpec)
+
+
+def test_every_synth_setting_names_the_scene(tmp_path):
+    """A setting other than kind, rooms and seed makes another scene, bag and cache key; the
+    shipped suites, which set none, keep their names; the room stays the one held_out names."""
+    def jobs(synth):
+        return load_suite(write(tmp_path, f"scans: [{{synth: {synth}}}]\n"), bag_spec=BagSpec).jobs
+
+    plain = jobs("{kind: office, rooms: 2, seed: 3}")[0]
+    assert plain.name == "synth_office2_3_default_s0" and plain.spec["scan"].endswith("scenes/synth_office2_3")
+    assert jobs("{kind: office, rooms: 2, seed: 3, density: 650}")[0].name == plain.name   # the default
+    sparse, dense = jobs("{kind: office, rooms: 2, seed: 3, density: 200}")[0], \
+        jobs("{kind: office, rooms: 2, seed: 3, density: 1000}")[0]
+    noisy = jobs("{kind: office, rooms: 2, seed: 3, noise: {drop: 0.1}}")[0]
+    assert len({plain.name, sparse.name, dense.name, noisy.name}) == 4
+    assert len({j.spec["scan"] for j in (plain, sparse, dense, noisy)}) == 4
+    assert {j.room for j in (plain, sparse, dense, noisy)} == {"synth_office2_3"}
+    assert sparse.name.startswith("synth_office2_3_") and sparse.synth["density"] == 200
+
+
+def test_shipped_suites_keep_their_bag_names():
+    for path in sorted(SUITES.glob("*.yaml")):
+        if "data:" in path.read_text():
+            continue                  # the real suite needs ../shared/data
+        suite = load_suite(path, bag_spec=BagSpec)
+        synth = [j for j in suite.jobs if j.synth is not None]
+        assert synth and all(j.name == f"{j.room}_{j.walk}_s{j.seed}" for j in synth), path
+        assert all(j.spec["scan"].endswith(f"scenes/{j.room}") for j in synth), path
 
 
 def frame(correct, verified, registrable, confidence):

@@ -1,10 +1,15 @@
 """sgreg bench-replay: a suite file of two tiny generated bags, made, replayed through real nodes,
 summarised (JSON, table, PNG) and cached."""
 import json
+import shutil
 import subprocess
 import sys
+from pathlib import Path
+
+import numpy as np
 
 SGREG = [sys.executable, "-m", "sgreg_cli.main"]
+BAGS = Path(__file__).resolve().parents[2] / "bags"
 
 SUITE = """
 name: tiny
@@ -65,3 +70,68 @@ def test_a_broken_suite_is_refused_in_one_line(tmp_path):
     suite.write_text("name: bad\nscans:\n  - scan: nowhere/scene0001_00\n")
     res = subprocess.run(SGREG + ["bench-replay", str(suite)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
+
+
+TINY = """
+name: tiny
+bag_dir: bags
+defaults: {voxel: 0.1, speed: 1.0, mapping_period: 3.0}
+scans:
+  - synth: {kind: apartment, rooms: 1, seed: 5, density: 150}
+"""
+
+
+def make_only(suite, tmp_path):
+    return subprocess.run(SGREG + ["bench-replay", str(suite), "--make-only", "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_only_a_bag_the_suite_made_is_replaced(tmp_path):
+    suite = tmp_path / "tiny.yaml"
+    suite.write_text(TINY)
+    assert make_only(suite, tmp_path).returncode == 0
+    [bag] = (tmp_path / "bags").glob("synth_*_s0")
+    suite.write_text(TINY.replace("speed: 1.0", "speed: 0.8"))
+    res = make_only(suite, tmp_path)
+    assert res.returncode == 0 and f"replacing {bag.name}: made with other settings (speed)" in res.stdout
+    assert json.loads((bag / "ground_truth.json").read_text())["config"]["speed"] == 0.8
+    shutil.rmtree(bag)
+    bag.mkdir()
+    (bag / "notes.txt").write_text("mine")
+    res = make_only(suite, tmp_path)
+    assert res.returncode == 2 and f"{bag} is in the way: not a bag made by sgreg make-bag" in res.stderr
+    assert "Traceback" not in res.stderr and (bag / "notes.txt").read_text() == "mine"
+
+
+def test_a_changed_synth_setting_makes_a_new_scene_and_bag(tmp_path):
+    from sgreg_core.simulation.synth import SynthConfig, generate_scene
+
+    suite = tmp_path / "tiny.yaml"
+    for density in (150, 300):
+        suite.write_text(TINY.replace("density: 150", f"density: {density}"))
+        assert make_only(suite, tmp_path).returncode == 0
+    scenes = sorted((tmp_path / "bags" / "scenes").iterdir())
+    assert len(scenes) == 2 and len(list((tmp_path / "bags").glob("synth_*_s0"))) == 2
+    made = {len(np.load(s / "points.npy")) for s in scenes}
+    assert made == {len(generate_scene(5, SynthConfig(density=d)).points) for d in (150, 300)}
+
+
+def test_bad_suite_values_and_run_inputs_are_refused_in_one_line(tmp_path):
+    (tmp_path / "a_file").write_text("not a folder")
+    bad_gt = tmp_path / "bad_gt"
+    shutil.copytree(BAGS / "apartment_opposite", bad_gt)
+    (bad_gt / "ground_truth.json").write_text("[]")
+    shipped = f"bags: [{BAGS / 'apartment_opposite'}]\n"
+    for text, extra, words in [
+        ("defaults: {speed: fast}\nscans: [{synth: {}}]\n", [], "defaults: speed must be a finite number"),
+        ("scans: [{synth: {roomz: 2}}]\n", [], "synth: unknown keys ['roomz']"),
+        (f"bags: [{bad_gt}]\n", [], "bag bad_gt: "),
+        (shipped, ["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file"),
+        (shipped, ["--weights", str(tmp_path / "none.safetensors")], "cannot load weights"),
+        (shipped, ["--out", str(tmp_path / "a_file" / "out")], "--out: cannot create folder"),
+    ]:
+        suite = tmp_path / "s.yaml"
+        suite.write_text(text)
+        res = subprocess.run(SGREG + ["bench-replay", str(suite), "--out", str(tmp_path / "out"), *extra],
+                             capture_output=True, text=True, timeout=120)
+        assert res.returncode == 2 and words in res.stderr and res.stderr.count("\n") == 1, res.stderr

@@ -1,6 +1,7 @@
 """sgreg replay on the shipped bags: real agent and registration processes over DDS on loopback,
 scored against the bags' ground truth."""
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -119,3 +120,28 @@ def test_results_of_another_fleet_on_the_domain_are_left_out(tmp_path):
     assert "1 unknown_key" in foreign_warning(fleet.foreign)
     unsigned_fleet = FleetCheck("")                          # a replay run without keys
     assert unsigned_fleet.take(result(None), "a") and not unsigned_fleet.take(result(None, "b"), "a")
+
+
+def test_a_ground_truth_that_cannot_be_scored_is_refused_before_any_node_starts(tmp_path, capsys,
+                                                                              monkeypatch):
+    """Malformed JSON, a JSON list: replay says so in one line (exit 2) without starting a node
+    or playing the bag, and so does view; an --json folder that cannot be made, too."""
+    from sgreg_cli import processes
+    from sgreg_cli.main import main
+
+    def no_node(*args, **kwargs):
+        raise AssertionError("a node was started")
+
+    monkeypatch.setattr(processes, "start_agents", no_node)
+    bag = tmp_path / "bag"
+    shutil.copytree(BAGS / "apartment_opposite", bag)
+    for text, words in (("{not json", "Expecting property name"), ("[]", "expected a JSON object")):
+        (bag / "ground_truth.json").write_text(text)
+        for argv in (["replay", str(bag), "--json", str(tmp_path / "r.json")],
+                     ["view", str(bag), "--png", str(tmp_path / "v.png")]):
+            assert main(argv) == 2, argv
+            err = capsys.readouterr().err
+            assert err.startswith(f"sgreg {argv[0]}: ") and words in err and err.count("\n") == 1
+    (tmp_path / "a_file").write_text("not a folder")
+    assert main(["replay", str(BAGS / "apartment_opposite"), "--json", str(tmp_path / "a_file/r.json")]) == 2
+    assert "cannot create folder" in capsys.readouterr().err
