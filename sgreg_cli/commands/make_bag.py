@@ -164,7 +164,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     from ..bag_types import typestore
-    from ..bags import offered_qos, qos_for
+    from ..bags import offered_qos, qos_for, seal_chunks
     from sgreg_ros.convert import instance_map_to_msg, transform_msg
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
@@ -225,6 +225,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                 w.write(gt, stamp_ns + 1, serialize_message(transform_msg(T, "a", "b", stamp_ns)))
             if i % 10 == 0 or i == len(events) - 1:
                 log(f"writing: {i + 1}/{len(events)} messages")
+    seal_chunks(out)
     info = {
         "T_a_b": T.tolist(),
         "description": "T_scene_map: each agent's map frame (<id>/map) in the scene's frame, for "
