@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
@@ -16,8 +17,11 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
+from sgreg_msgs.msg import InstanceMap
 
+from sgreg_core.geometry import MAX_COORD_M
 from sgreg_ros import qos
+from sgreg_ros.pointcloud import PointCloudError, unpack_xyz_id
 from .bag_types import typestore
 
 
@@ -107,15 +111,11 @@ def read_messages(reader: Reader, conns: list, path):
         raise BagError(f"bag {path} is damaged: {exc}") from None
 
 
-def map_points_problem(imap) -> str | None:
-    """Why an instance map from a bag must not be used (points NaN, infinite or beyond
+def map_points_problem(points) -> str | None:
+    """Why an instance map of these points from a bag must not be used (NaN, infinite or beyond
     MAX_COORD_M: damaged bytes decoded), else None. Only the points: an empty map is a real
     recording, and the nodes judge the rest (validate_instance_map)."""
-    import numpy as np
-
-    from sgreg_core.geometry import MAX_COORD_M
-
-    pts = np.asarray(imap.points)
+    pts = np.asarray(points)
     if not np.isfinite(pts).all():
         return "points are NaN or infinite"
     if pts.size and np.abs(pts).max() > MAX_COORD_M:
@@ -227,16 +227,11 @@ def _message_problem(raw: bytes, cls) -> str | None:
         msg = deserialize_message(raw, cls)
     except Exception as exc:
         return str(exc)
-    from sgreg_msgs.msg import InstanceMap
-
-    from sgreg_ros.convert import ConversionError, instance_map_from_msg
-
     if not isinstance(msg, InstanceMap):
         return None
-
     try:
-        return map_points_problem(instance_map_from_msg(msg))
-    except ConversionError as exc:
+        return map_points_problem(unpack_xyz_id(msg.points, "instance")[0])
+    except PointCloudError as exc:
         return str(exc)
 
 
@@ -327,8 +322,6 @@ def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
     """Every */mapping/instances message of a bag as (bag time - t_origin in s, agent id,
     sgreg_core InstanceMap), in bag order; for offline replays. Undecodable messages and maps
     with damaged points are skipped, as `play_bag` skips them; a damaged chunk raises BagError."""
-    from sgreg_msgs.msg import InstanceMap
-
     from sgreg_ros.convert import ConversionError, instance_map_from_msg
 
     reader = open_bag(path)
@@ -340,7 +333,7 @@ def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
                 imap = instance_map_from_msg(deserialize_message(bytes(raw), InstanceMap))
             except (ConversionError, Exception):
                 continue
-            if map_points_problem(imap):
+            if map_points_problem(imap.points):
                 continue
             out.append((t_ns * 1e-9 - t_origin, conn.topic.split("/")[1], imap))
     finally:
