@@ -9,15 +9,19 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
+from sgreg_msgs.msg import InstanceMap
 
+from sgreg_core.geometry import MAX_COORD_M
 from sgreg_ros import qos
+from sgreg_ros.pointcloud import PointCloudError, unpack_xyz_id
 from .bag_types import typestore
 
 
@@ -82,6 +86,71 @@ def open_bag(path: str | Path) -> Reader:
     return reader
 
 
+def select_connections(reader: Reader, topics: list[str] | None, path) -> list:
+    """The bag's connections of `topics` (None: all of them). BagError, naming the bag's topics,
+    when none matches: rosbags reads an empty selection as "every connection"."""
+    if topics is None:
+        return list(reader.connections)
+    conns = [c for c in reader.connections if c.topic in topics]
+    if not conns:
+        held = ", ".join(sorted({c.topic for c in reader.connections})) or "no topic"
+        raise BagError(f"bag {path} has none of the topics {', '.join(topics) or '(none given)'}; "
+                       f"it holds {held}")
+    return conns
+
+
+def read_messages(reader: Reader, conns: list, path):
+    """(connection, t_ns, raw) of `conns` in bag order; nothing for no connection. A chunk that
+    does not decompress or fails its checksum raises BagError: the reader cannot go on past it,
+    so the rest of the bag is lost to every tool alike."""
+    if not conns:
+        return
+    try:
+        yield from reader.messages(connections=conns)
+    except Exception as exc:  # rosbags' ReaderError, zstd's ZstdError, struct errors, ...
+        raise BagError(f"bag {path} is damaged: {exc}") from None
+
+
+def map_points_problem(points) -> str | None:
+    """Why an instance map of these points from a bag must not be used (NaN, infinite or beyond
+    MAX_COORD_M: damaged bytes decoded), else None. Only the points: an empty map is a real
+    recording, and the nodes judge the rest (validate_instance_map)."""
+    pts = np.asarray(points)
+    if not np.isfinite(pts).all():
+        return "points are NaN or infinite"
+    if pts.size and np.abs(pts).max() > MAX_COORD_M:
+        return f"points lie more than {MAX_COORD_M:g} m from the origin"
+    return None
+
+
+def seal_chunks(bag: str | Path) -> None:
+    """Write each chunk's CRC-32 into the bag's MCAP files, where rosbags' writer leaves 0
+    ("no checksum"): readers then refuse a damaged chunk instead of decoding flipped bytes into
+    messages. In place, only the 4 checksum bytes of each chunk change."""
+    from binascii import crc32
+
+    from rosbags.rosbag2.storage_mcap import decompress
+
+    for mcap in Path(bag).glob("*.mcap"):
+        with mcap.open("r+b") as f:
+            pos = 8                                         # after the magic
+            while len(head := _read_at(f, pos, 9)) == 9 and head[0] != 0x0F:   # 0x0F: data end
+                length = int.from_bytes(head[1:], "little")
+                if head[0] == 0x06:                         # chunk record
+                    body = f.read(length)
+                    size = int.from_bytes(body[16:24], "little")
+                    n = int.from_bytes(body[28:32], "little")
+                    raw = decompress(body[40 + n:], body[32:32 + n].decode(), size, 0)
+                    f.seek(pos + 9 + 24)
+                    f.write(crc32(raw).to_bytes(4, "little"))
+                pos += 9 + length
+
+
+def _read_at(f, pos: int, n: int) -> bytes:
+    f.seek(pos)
+    return f.read(n)
+
+
 @dataclass
 class PlayReport:
     """published / corrupted / per_topic: what was played; clock: (monotonic s, bag s) at the
@@ -106,14 +175,17 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     everything. With clock_hz > 0 it also publishes the bag's time on /clock at that rate (from
     the bag's start, during the delay too), as `ros2 bag play --clock` does, so that nodes run
     with use_sim_time follow the bag.
-    Each message is checked by deserialising it first; one that does not decode is reported
-    and skipped, and the rest of the bag plays on."""
+    Each message is checked by deserialising it first; one that does not decode, or an instance
+    map whose points are not finite or absurdly far (map_points_problem), is reported and
+    skipped, and the rest of the bag plays on. A damaged chunk (many messages compressed
+    together) ends play with a BagError: nothing after it can be read.
+    `topics` (None: all) that the bag does not hold at all raise BagError."""
     if rate <= 0:
         raise BagError(f"rate must be positive, got {rate}")
     report = PlayReport()
     reader = open_bag(path)
     try:
-        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        conns = select_connections(reader, topics, path)
         classes = {c.id: message_class(c.msgtype) for c in conns}
         pubs = {}
         for c in conns:
@@ -125,7 +197,7 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
             time.sleep(0.05)
         clock.sleep_until(time.monotonic() + delay)
         t0_bag, t0_wall = None, time.monotonic()
-        for index, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
+        for index, (conn, t_ns, raw) in enumerate(read_messages(reader, conns, path)):
             if should_stop() or not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
                 break
             if t0_bag is None:
@@ -133,11 +205,10 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
                 report.clock = (t0_wall, t_ns * 1e-9)
                 clock.start(t0_wall, t_ns)
             clock.sleep_until(t0_wall + (t_ns - t0_bag) * 1e-9 / rate)
-            try:
-                deserialize_message(bytes(raw), classes[conn.id])
-            except Exception as exc:
-                report.corrupted.append((conn.topic, index, str(exc)[:200]))
-                log(f"bag message {index} on {conn.topic} is corrupted ({exc}); skipped")
+            problem = _message_problem(bytes(raw), classes[conn.id])
+            if problem:
+                report.corrupted.append((conn.topic, index, problem[:200]))
+                log(f"bag message {index} on {conn.topic} is corrupted ({problem}); skipped")
                 continue
             pubs[conn.topic].publish(bytes(raw))
             report.published += 1
@@ -148,6 +219,20 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     finally:
         reader.close()
     return report
+
+
+def _message_problem(raw: bytes, cls) -> str | None:
+    """Why a bag message must not be published, else None."""
+    try:
+        msg = deserialize_message(raw, cls)
+    except Exception as exc:
+        return str(exc)
+    if not isinstance(msg, InstanceMap):
+        return None
+    try:
+        return map_points_problem(unpack_xyz_id(msg.points, "instance")[0])
+    except PointCloudError as exc:
+        return str(exc)
 
 
 class _BagClock:
@@ -185,10 +270,13 @@ class BagRecorder:
         out = Path(out)
         if out.exists():
             raise BagError(f"{out} exists; rosbag2 writes a new directory")
-        self.node = node
+        self.node, self.out = node, out
         self.store = typestore()
         self.writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
-        self.writer.open()
+        try:
+            self.writer.open()
+        except (OSError, WriterError) as exc:   # a folder that cannot be created
+            raise BagError(f"cannot create bag {out}: {exc}") from None
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}
 
@@ -217,6 +305,7 @@ class BagRecorder:
 
     def close(self) -> None:
         self.writer.close()
+        seal_chunks(self.out)
 
 
 def spin_for(node, duration: float) -> None:
@@ -231,20 +320,20 @@ def spin_for(node, duration: float) -> None:
 
 def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
     """Every */mapping/instances message of a bag as (bag time - t_origin in s, agent id,
-    sgreg_core InstanceMap), in bag order; for offline replays. Undecodable messages are
-    skipped, as `play_bag` skips them."""
-    from sgreg_msgs.msg import InstanceMap
-
+    sgreg_core InstanceMap), in bag order; for offline replays. Undecodable messages and maps
+    with damaged points are skipped, as `play_bag` skips them; a damaged chunk raises BagError."""
     from sgreg_ros.convert import ConversionError, instance_map_from_msg
 
     reader = open_bag(path)
     out = []
     try:
         conns = [c for c in reader.connections if c.topic.endswith("/mapping/instances")]
-        for conn, t_ns, raw in reader.messages(connections=conns):
+        for conn, t_ns, raw in read_messages(reader, conns, path):
             try:
                 imap = instance_map_from_msg(deserialize_message(bytes(raw), InstanceMap))
             except (ConversionError, Exception):
+                continue
+            if map_points_problem(imap.points):
                 continue
             out.append((t_ns * 1e-9 - t_origin, conn.topic.split("/")[1], imap))
     finally:
@@ -263,7 +352,7 @@ def final_maps(path: str | Path, gt: dict | None = None) -> dict:
 
 def tf_in_bag(path: str | Path) -> dict:
     """child frame -> (parent frame, 4x4) of the last /tf transforms recorded in a bag (empty
-    when it recorded none)."""
+    when it recorded none). A damaged chunk raises BagError."""
     from tf2_msgs.msg import TFMessage
 
     from sgreg_ros.convert import transform_from_msg
@@ -272,8 +361,7 @@ def tf_in_bag(path: str | Path) -> dict:
     out = {}
     try:
         conns = [c for c in reader.connections if c.topic == "/tf"]
-        # (no connections would mean every message to rosbags)
-        for _, _, raw in reader.messages(connections=conns) if conns else ():
+        for _, _, raw in read_messages(reader, conns, path):
             try:
                 msg = deserialize_message(bytes(raw), TFMessage)
             except Exception:

@@ -15,27 +15,34 @@ def add_arguments(p):
     p.add_argument("--duration", type=float, default=0.0, help="live: stop after this many seconds (0: Ctrl-C)")
 
 
+def _bag_report(bag: str, topics: list[str] | None) -> str:
+    """The bandwidth table of a bag's `topics` (None: all); raises BagError."""
+    from sgreg_core.bench.bandwidth import HEADER, BandwidthMeter, format_table
+
+    from ..bags import open_bag, read_messages, select_connections
+
+    reader = open_bag(bag)
+    meter = BandwidthMeter()
+    try:
+        for conn, t_ns, raw in read_messages(reader, select_connections(reader, topics, bag), bag):
+            meter.add(conn.topic, t_ns * 1e-9, len(raw))
+        span = (reader.end_time - reader.start_time) * 1e-9
+    finally:
+        reader.close()
+    return f"bag {bag}: {span:.1f} s\n" + format_table(HEADER, [r.as_row() for r in meter.report(span=span)])
+
+
 def run(args) -> int:
     from sgreg_core.bench.bandwidth import HEADER, BandwidthMeter, format_table
 
     if args.bag:
-        from ..bags import BagError, open_bag
+        from ..bags import BagError
 
         try:
-            reader = open_bag(args.bag)
+            print(_bag_report(args.bag, args.topics or None))
         except BagError as exc:
             print(f"sgreg bw: {exc}", file=sys.stderr)
             return 2
-        meter = BandwidthMeter()
-        try:
-            conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
-            for conn, t_ns, raw in reader.messages(connections=conns):
-                meter.add(conn.topic, t_ns * 1e-9, len(raw))
-            span = (reader.end_time - reader.start_time) * 1e-9
-        finally:
-            reader.close()
-        print(f"bag {args.bag}: {span:.1f} s")
-        print(format_table(HEADER, [r.as_row() for r in meter.report(span=span)]))
         return 0
 
     import rclpy

@@ -8,6 +8,7 @@ that make early, small maps: --speed, --range, --fov, --waypoints, --start-a / -
 from __future__ import annotations
 
 import json
+import numbers
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -55,9 +56,42 @@ class BagSpec:
     random_start: bool = False
     level: bool = True
 
+    def __post_init__(self):
+        """Refuse settings out of _LIMITS here, so that CLI flags and suite files alike get a
+        clear BagSpecError before any simulation."""
+        for name, (lo, hi, unit) in _LIMITS.items():
+            value = getattr(self, name)
+            if value is None and name in ("range_b", "fov_b"):
+                continue
+            integral = name in ("seed", "waypoints")
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral if integral else numbers.Real) \
+                    or not lo <= value <= hi:     # NaN fails the comparison
+                raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be "
+                                   f"{'an integer' if integral else 'a number'} in [{lo:g}, {hi:g}]{unit}, "
+                                   f"got {value!r}")
+
 
 class BagSpecError(ValueError):
-    """A spec that cannot become a bag (missing scan, pair without accepted ground truth)."""
+    """A spec that cannot become a bag (missing scan, pair without accepted ground truth, a
+    setting out of range)."""
+
+
+# BagSpec field -> (lowest, highest, unit). Outside these a walk fails (negative speed), eats
+# the memory (a clearance dilates the obstacle grid by its square; tiny periods or speeds make
+# millions of snapshots or poses) or maps nothing (the sensor sees nothing nearer than 0.3 m,
+# SensorConfig.min_range, or with no field of view).
+_LIMITS = {
+    "seed": (0, 2**63 - 1, ""),
+    "speed": (0.05, 10.0, " m/s"),
+    "range": (0.5, 100.0, " m"),
+    "range_b": (0.5, 100.0, " m"),
+    "fov": (1.0, 360.0, " deg"),
+    "fov_b": (1.0, 360.0, " deg"),
+    "mapping_period": (0.2, 3600.0, " s"),    # 0.2: the walk's 5 poses a second
+    "voxel": (0.0, 1.0, " m"),                # 0: no downsampling
+    "clearance": (0.0, 2.0, " m"),
+    "waypoints": (1, 100, ""),
+}
 
 
 def add_arguments(p):
@@ -98,10 +132,15 @@ def rescan_transform(scan: str, scan_b: str, gt_path: str):
     """T (4x4) mapping scan_b's points into scan's frame, from an accepted rescan_gt.json entry."""
     import numpy as np
 
+    from sgreg_core.geometry import is_rigid
+
     try:
-        pairs = json.loads(Path(gt_path).read_text())["pairs"]
-    except (OSError, ValueError, KeyError) as exc:
+        data = json.loads(Path(gt_path).read_text())
+    except (OSError, ValueError) as exc:
         raise BagSpecError(f"cannot read pseudo ground truth {gt_path}: {exc}") from None
+    pairs = data.get("pairs") if isinstance(data, dict) else None
+    if not isinstance(pairs, list) or not all(isinstance(e, dict) for e in pairs):
+        raise BagSpecError(f"{gt_path} is not a pseudo ground truth: expected {{\"pairs\": [objects]}}")
     a, b = Path(scan).name, Path(scan_b).name
     for entry in pairs:
         if {entry.get("src"), entry.get("ref")} != {a, b}:
@@ -109,6 +148,9 @@ def rescan_transform(scan: str, scan_b: str, gt_path: str):
         if not entry.get("accepted"):
             why = "; ".join(entry.get("reasons") or [entry.get("reason", "no reason given")])
             raise BagSpecError(f"{gt_path} rejects {a} x {b}: {why}")
+        # the bag's ground truth must be a rigid transform, or every score against it is wrong
+        if not is_rigid(entry.get("T_src_to_ref")):
+            raise BagSpecError(f"{gt_path}: T_src_to_ref of {a} x {b} is not a 4x4 rigid transform")
         T = np.asarray(entry["T_src_to_ref"], np.float64)
         return T if entry["src"] == b else np.linalg.inv(T)
     raise BagSpecError(f"{gt_path} has no entry for {a} x {b}")
@@ -122,7 +164,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     from ..bag_types import typestore
-    from ..bags import offered_qos, qos_for
+    from ..bags import offered_qos, qos_for, seal_chunks
     from sgreg_ros.convert import instance_map_to_msg, transform_msg
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
@@ -183,6 +225,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                 w.write(gt, stamp_ns + 1, serialize_message(transform_msg(T, "a", "b", stamp_ns)))
             if i % 10 == 0 or i == len(events) - 1:
                 log(f"writing: {i + 1}/{len(events)} messages")
+    seal_chunks(out)
     info = {
         "T_a_b": T.tolist(),
         "description": "T_scene_map: each agent's map frame (<id>/map) in the scene's frame, for "

@@ -18,6 +18,9 @@ def run(args) -> int:
 
     from ..bags import BagError, BagRecorder, spin_for
 
+    if not args.duration >= 0:   # NaN too: it would stop at once
+        print(f"sgreg record: --duration must be >= 0 s (0: until Ctrl-C), got {args.duration}", file=sys.stderr)
+        return 2
     rclpy.init()
     node = rclpy.create_node("sgreg_record")
     try:

@@ -54,3 +54,27 @@ def test_the_command_table_comes_from_the_command_modules(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert all(name in out and module.HELP in out for name, module in found.items())
     assert main(["no-such-command"]) == 2
+
+
+def test_pairs_never_mix_two_runs_in_one_folder(tmp_path, capsys):
+    from sgreg_core.maps.instance_map import write_instance_map
+    from sgreg_core.simulation.synth import SynthConfig, generate_scene
+
+    scan, out = tmp_path / "scene", tmp_path / "pairs"
+    write_instance_map(generate_scene(3, SynthConfig(density=150.0)), scan)
+    assert main(["pairs", str(scan), str(out), "--seed", "-1"]) == 2
+    assert main(["pairs", str(scan), str(out), "--n", "3", "--seed", "0"]) == 0
+    first = (out / "pair_000" / "gt.json").read_text()
+    capsys.readouterr()
+    # a second run is refused, the first run's pairs untouched ...
+    assert main(["pairs", str(scan), str(out), "--n", "1", "--seed", "7"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "pair_000" / "gt.json").read_text() == first
+    # ... unless asked: then only the new run's pairs are there
+    assert main(["pairs", str(scan), str(out), "--n", "1", "--seed", "7", "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["pair_000"]
+    assert (out / "pair_000" / "gt.json").read_text() != first
+    # a folder with anything else in it is never cleared
+    (out / "notes.txt").write_text("mine")
+    assert main(["pairs", str(scan), str(out), "--n", "1", "--overwrite"]) == 2
+    assert "notes.txt" in capsys.readouterr().err and (out / "pair_000").is_dir()

@@ -98,3 +98,9 @@ def test_a_building_floor_has_runs_of_identical_rooms():
     assert len(la) >= 5 and list(la) == list(lb), "rooms of one run hold other objects"
     assert np.abs(oa - ob).max() < 0.15, "rooms of one run hold them elsewhere"      # point sampling only
     assert list(la) != list(lc) or np.abs(oa - oc).max() > 0.5, "rooms of other runs are copies too"
+
+
+def test_an_office_of_more_rooms_than_room_types():
+    # six office room types: the seventh room and on start the list over, by size
+    scene = generate_scene(0, SynthConfig(kind="office", rooms=8, density=60.0))
+    assert Counter(scene.labels.values())["floor"] == 8

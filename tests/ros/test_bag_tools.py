@@ -3,8 +3,9 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 
 import sgreg_msgs.msg as msgs
 from sgreg_cli.bag_types import typestore
@@ -14,12 +15,16 @@ from .samples import coarse_graph, instance_map
 SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 
-def write_bag(path, corrupt_index=None, n=6):
-    """n InstanceMaps and n CoarseGraphs, 0.1 s apart; optionally one CoarseGraph truncated."""
+def write_bag(path, corrupt_index=None, n=6, compress=False):
+    """n InstanceMaps and n CoarseGraphs, 0.1 s apart; optionally one CoarseGraph truncated,
+    optionally in zstd chunks (as make-bag writes)."""
     rng = np.random.default_rng(1)
     sent = {"/a/mapping/instances": [], "/b/sgreg/coarse": []}
     store = typestore()
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer as w:
         ci = w.add_connection("/a/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=store)
         cc = w.add_connection("/b/sgreg/coarse", "sgreg_msgs/msg/CoarseGraph", typestore=store)
         for i in range(n):
@@ -37,6 +42,25 @@ def write_bag(path, corrupt_index=None, n=6):
             w.write(cc, t + 1, raw)
             sent["/a/mapping/instances"].append(m)
     return sent
+
+
+def chunk_crcs(bag):
+    """The CRC-32 each chunk of the bag's MCAP file carries (0: none), read by the mcap package."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    with open(next(bag.glob("*.mcap")), "rb") as f:
+        return [r.uncompressed_crc for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+
+
+def flip_bytes(bag, at=0.5, n=32):
+    """Damage n bytes of the bag's MCAP file from a fraction `at` of it (inside the chunk of a
+    write_bag bag) or from the first occurrence of the bytes `at`."""
+    mcap = next(bag.glob("*.mcap"))
+    b = bytearray(mcap.read_bytes())
+    i = b.index(at) if isinstance(at, bytes) else int(len(b) * at)
+    b[i:i + n] = bytes(x ^ 0xFF for x in b[i:i + n])
+    mcap.write_bytes(b)
 
 
 def read_bag(path):
@@ -70,6 +94,7 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
         offered = {c.topic: c.ext.offered_qos_profiles for c in r.connections}
     assert [q.durability for q in offered["/b/sgreg/coarse"]] == [QosDurability.TRANSIENT_LOCAL]
     assert [q.durability for q in offered["/a/mapping/instances"]] == [QosDurability.VOLATILE]
+    assert all(chunk_crcs(out)), "the recorder leaves chunks without a checksum"
     # transient-local coarse may be delivered once more on late discovery; compare content
     for topic, messages in sent.items():
         received = [m for m in got.get(topic, [])]
@@ -119,3 +144,72 @@ def test_play_refuses_a_directory_that_is_not_a_bag(tmp_path):
     out = subprocess.run(SGREG + ["play", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "not a rosbag2 directory" in out.stderr
+
+
+def test_bw_and_play_refuse_topics_the_bag_lacks(tmp_path):
+    # rosbags reads an empty selection of topics as "all of them"
+    src = tmp_path / "src"
+    write_bag(src)
+    for argv in (["bw", "--bag", str(src), "/does/not/exist"],
+                 ["play", str(src), "--delay", "0", "--topics", "/does/not/exist"],
+                 ["play", str(src), "--delay", "0", "--topics"]):
+        out = subprocess.run(SGREG + argv, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2, (argv, out.stdout, out.stderr)
+        assert "has none of the topics" in out.stderr and "/b/sgreg/coarse" in out.stderr, argv
+        assert "played" not in out.stdout and "/a/mapping" not in out.stdout
+
+
+def test_a_damaged_chunk_is_a_clear_error(tmp_path):
+    from sgreg_cli.bags import BagError, instance_maps_in_bag
+
+    src = tmp_path / "src"
+    write_bag(src, compress=True)
+    flip_bytes(src, at=b"\x28\xb5\x2f\xfd")     # the zstd frame's start: its random points hide damage elsewhere
+    for argv in (["bw", "--bag", str(src)], ["play", str(src), "--delay", "0"]):
+        out = subprocess.run(SGREG + argv, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2 and "is damaged" in out.stderr, (argv, out.stderr)
+        assert "Traceback" not in out.stderr
+    with pytest.raises(BagError, match="is damaged"):
+        instance_maps_in_bag(src)
+
+
+def test_sealed_chunks_turn_flipped_bytes_into_an_error(tmp_path):
+    from sgreg_cli.bags import seal_chunks
+
+    src = tmp_path / "src"
+    sent = write_bag(src)                   # uncompressed, as the recorder writes
+    assert chunk_crcs(src) == [0]           # rosbags' writer leaves the checksum out
+    seal_chunks(src)
+    assert all(chunk_crcs(src)) and len(read_bag(src)["/b/sgreg/coarse"]) == len(sent["/b/sgreg/coarse"])
+    flip_bytes(src)
+    out = subprocess.run(SGREG + ["bw", "--bag", str(src)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "checksum" in out.stderr, out.stderr
+
+
+def test_play_skips_maps_whose_points_are_not_finite_or_absurd(tmp_path):
+    from sgreg_cli.bags import instance_maps_in_bag
+    from sgreg_ros.pointcloud import pack_xyz_id
+
+    src, rng = tmp_path / "src", np.random.default_rng(2)
+    with Writer(src, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection("/a/mapping/instances", "sgreg_msgs/msg/InstanceMap", typestore=typestore())
+        for i, bad in enumerate([None, np.nan, 2e38, None]):
+            m = instance_map(rng, n_points=200)
+            if bad is not None:                 # what flipped bytes in a map decode to
+                pts = rng.normal(size=(200, 3))
+                pts[7] = bad
+                m.points = pack_xyz_id(pts, rng.choice(m.instance_ids, 200), "instance", frame_id="a/map")
+            w.write(conn, 10**9 + i * 10**8, serialize_message(m))
+    assert len(instance_maps_in_bag(src)) == 2
+    play = subprocess.run(SGREG + ["play", str(src), "--delay", "0"], capture_output=True, text=True, timeout=60)
+    assert play.returncode == 0, play.stderr
+    assert "played 2 messages" in play.stdout and "2 corrupted messages skipped: #1 on" in play.stdout
+    assert "NaN or infinite" in play.stderr and "m from the origin" in play.stderr
+
+
+def test_record_refuses_an_uncreatable_folder_and_a_negative_duration(tmp_path):
+    (tmp_path / "file").write_text("")
+    for argv, why in ((["--out", str(tmp_path / "file" / "bag"), "--duration", "1"], "cannot create bag"),
+                      (["--out", str(tmp_path / "bag"), "--duration", "-1"], "--duration must be >= 0")):
+        out = subprocess.run(SGREG + ["record", "/x"] + argv, capture_output=True, text=True, timeout=30)
+        assert out.returncode == 2 and why in out.stderr and "Traceback" not in out.stderr, out.stderr

@@ -14,6 +14,8 @@ from sgreg_core.geometry import transform_points
 from sgreg_msgs.msg import InstanceMap
 from sgreg_ros.convert import instance_map_from_msg
 
+from .test_bag_tools import chunk_crcs
+
 SGREG = [sys.executable, "-m", "sgreg_cli.main"]
 
 
@@ -27,6 +29,7 @@ def test_make_bag_from_a_synthetic_scene(tmp_path):
     gt = json.loads((bag / "ground_truth.json").read_text())
     T_ab = np.asarray(gt["T_a_b"])
     assert np.allclose(T_ab[:3, :3] @ T_ab[:3, :3].T, np.eye(3), atol=1e-9)
+    assert all(chunk_crcs(bag)), "damaged chunks would decode into maps of NaN points"
 
     maps = {"a": [], "b": []}
     with Reader(bag) as r:

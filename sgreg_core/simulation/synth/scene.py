@@ -387,7 +387,9 @@ def generate_scene(seed: int, cfg: SynthConfig | None = None) -> InstanceMap:
         order = rng.permutation(len(types))
         rooms_by_size = sorted(range(len(rooms)), key=lambda k: -rooms[k].area)
         for rank, k in enumerate(rooms_by_size):
-            rooms[k].rtype = types[rank] if cfg.kind == "office" or rank == 0 else types[order[rank % len(types)]]
+            # offices: by size, from the open office down, starting over past the sixth room
+            rooms[k].rtype = types[rank % len(types)] if cfg.kind == "office" or rank == 0 \
+                else types[order[rank % len(types)]]
             if cfg.kind == "apartment" and rank == 0 and cfg.rooms == 1:
                 rooms[k].rtype = ["living room", "bedroom", "study", "kitchen"][int(rng.integers(4))]
     scene = _Scene(cfg, rng)

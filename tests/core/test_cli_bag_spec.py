@@ -1,0 +1,62 @@
+"""sgreg make-bag's input checks, before any simulation: the settings of a bag (BagSpec) and
+the pseudo ground truth that moves a second capture (rescan_gt.json)."""
+import json
+
+import numpy as np
+import pytest
+
+from sgreg_cli.commands.make_bag import BagSpec, BagSpecError, rescan_transform
+from sgreg_cli.main import main
+
+
+@pytest.mark.parametrize("setting", [
+    {"speed": -1.0}, {"speed": 0.0}, {"speed": float("nan")}, {"clearance": 100.0},
+    {"mapping_period": -1.0}, {"mapping_period": 0.0}, {"mapping_period": float("nan")},
+    {"range": 0.0}, {"range": -5.0}, {"fov": 0.0}, {"range_b": 0.0}, {"fov_b": 400.0},
+    {"voxel": -0.1}, {"waypoints": 2.5}, {"seed": -1}, {"speed": "fast"}, {"speed": True},
+])
+def test_bag_settings_out_of_range_are_refused(setting):
+    name = next(iter(setting))
+    with pytest.raises(BagSpecError, match=rf"^{name} \(--{name.replace('_', '-')}\) must be"):
+        BagSpec(scan="scan", **setting)
+
+
+def test_default_and_shipped_bag_settings_are_accepted():
+    BagSpec(scan="scan")
+    BagSpec(scan="scan", speed=0.2, mapping_period=3.0, clearance=0.15, voxel=0.15, range_b=3.0, fov_b=60.0)
+
+
+def test_make_bag_refuses_a_bad_flag_in_one_line(tmp_path, capsys):
+    assert main(["make-bag", str(tmp_path), "--out", str(tmp_path / "bag"), "--speed", "-1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("sgreg make-bag: speed (--speed) must be")
+    assert not (tmp_path / "bag").exists()
+
+
+RIGID = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+
+
+@pytest.mark.parametrize("content, why", [
+    ([], "is not a pseudo ground truth"),
+    ({"pairs": ["x"]}, "is not a pseudo ground truth"),
+    ({"pairs": {"src": "b"}}, "is not a pseudo ground truth"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": True}]}, "not a 4x4 rigid transform"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": [[1, 0], [0, 1]]}]},
+     "not a 4x4 rigid transform"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": np.zeros((4, 4)).tolist()}]},
+     "not a 4x4 rigid transform"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": (2 * np.eye(4)).tolist()}]},
+     "not a 4x4 rigid transform"),
+])
+def test_a_malformed_pseudo_ground_truth_is_refused(tmp_path, content, why):
+    gt = tmp_path / "rescan_gt.json"
+    gt.write_text(json.dumps(content))
+    with pytest.raises(BagSpecError, match=why):
+        rescan_transform(str(tmp_path / "a"), str(tmp_path / "b"), str(gt))
+
+
+def test_an_accepted_rigid_pseudo_ground_truth_is_used_either_way(tmp_path):
+    gt = tmp_path / "rescan_gt.json"
+    gt.write_text(json.dumps({"pairs": [{"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": RIGID}]}))
+    np.testing.assert_allclose(rescan_transform("x/a", "x/b", str(gt)), RIGID)
+    np.testing.assert_allclose(rescan_transform("x/b", "x/a", str(gt)) @ RIGID, np.eye(4), atol=1e-12)
