@@ -246,8 +246,11 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
 
         def play():
             # only the nodes' inputs: the ground-truth topic has no subscriber to wait for
-            play_result["report"] = play_bag(player, bag, rate=cfg.rate, delay=0.5, wait_subscribers=10.0,
-                                             topics=[f"/{n}/mapping/instances" for n in names], log=log)
+            try:
+                play_result["report"] = play_bag(player, bag, rate=cfg.rate, delay=0.5, wait_subscribers=10.0,
+                                                 topics=[f"/{n}/mapping/instances" for n in names], log=log)
+            except BagError as exc:   # a damaged chunk: the run stops short and is not scored
+                play_result["error"] = exc
 
         thread = threading.Thread(target=play, daemon=True)
         thread.start()
@@ -283,6 +286,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
         player.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown()
+    if "error" in play_result:
+        raise play_result["error"]
     report = play_result.get("report")
     if report is not None and report.clock is not None:
         # bag seconds (after the bag's t_origin, as its ground truth counts them) of each frame

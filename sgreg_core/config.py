@@ -9,6 +9,7 @@ Public API:
     from_dict(cls, data) / to_dict(cfg) / apply_overrides(data, ["a.b=1", ...])
         from_dict checks each value against its field's type (NaN never) and a `param`
         field's range or choices, naming the field
+    finite_number(x) -> bool                 a real number, not a bool, finite
     check_types(cls, data, where) -> None   ValueError naming the first key of a (partial) dict
                                             that is not a field of cls or whose value does not
                                             fit the field's type (sections checked in turn)
@@ -117,8 +118,9 @@ def _fits(hint, value, finite: bool = True) -> bool:
     if hint is int:
         return isinstance(value, int) and not isinstance(value, bool)
     if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and (
-            _finite(value) if finite else not _nan(value))
+        if finite:
+            return finite_number(value)
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and not _nan(value)
     if hint is str:
         return isinstance(value, str)
     if hint is dict or origin is dict:
@@ -135,10 +137,11 @@ def _fits(hint, value, finite: bool = True) -> bool:
     return True          # no other kind of field is read from YAML
 
 
-def _finite(x: int | float) -> bool:
+def finite_number(x) -> bool:
+    """x is a real number (not a bool) and finite; an int too large for a float is not."""
     try:
-        return math.isfinite(x)
-    except OverflowError:     # an int too large for a float
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    except OverflowError:
         return False
 
 

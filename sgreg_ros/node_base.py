@@ -114,7 +114,8 @@ class SgregNode(Node):
     def check_twin(self) -> None:
         """Another node publishing this node's sole topic: two agents run under one name, and
         their peers take their maps for one agent's that restarts (ERROR while it lasts)."""
-        others = self.count_publishers(self.sole_topic) - 1
+        mine = sum(pub.topic_name == self.sole_topic for pub in self.publishers)   # none without a model
+        others = self.count_publishers(self.sole_topic) - mine
         twin = (f"{others} other node(s) publish {self.sole_topic}: is agent '{self.name}' "
                 f"running twice?") if others > 0 else None
         if twin and twin != self.twin:

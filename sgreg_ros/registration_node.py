@@ -38,7 +38,7 @@ from sgreg_core.runtime import views
 
 from . import convert, markers, qos
 from .node_base import SgregNode
-from .params import ParameterError, frame_ok, is_agent_id, params_of, pick
+from .params import AGENT_ID, ParameterError, frame_ok, is_agent_id, params_of, pick
 
 
 @dataclass
@@ -66,7 +66,7 @@ class RegistrationNodeConfig:
 PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig, VerdictConfig,
                    PoseConfig, MergeConfig, HealthConfig, AuthConfig,
                    skip=("dense_answers_per_s", "heartbeat_period_s", "quiet_after_s"))
-COARSE_TOPIC = re.compile(r"^/([A-Za-z][A-Za-z0-9_]*)/sgreg/coarse$")
+COARSE_TOPIC = re.compile(rf"^/({AGENT_ID.pattern})/sgreg/coarse$")
 
 
 class RegistrationNode(SgregNode):

@@ -22,10 +22,12 @@ def add_arguments(p):
 def run(args) -> int:
     from pathlib import Path
 
+    from sgreg_ros.params import is_agent_id
     from ..processes import DEFAULT_PARAMS, start_agents, stop
 
-    if len(set(args.names)) != len(args.names) or not all(n.isidentifier() for n in args.names):
-        print("sgreg agents: agent names must be distinct identifiers (a, b, robot_1, ...)", file=sys.stderr)
+    if len(set(args.names)) != len(args.names) or not all(is_agent_id(n) for n in args.names):
+        print("sgreg agents: agent names must be distinct agent ids: a letter, then letters, digits "
+              "and single underscores (a, b, robot_1, ...)", file=sys.stderr)
         return 2
     overrides = {k: v for k, v in (("weights_path", args.weights), ("keystore", args.keystore)) if v} or None
     procs = start_agents(args.names, args.params_file or DEFAULT_PARAMS, overrides,

@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
             OSError, KeyError) as exc:
         print(f"sgreg bench-register: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    torch.set_num_threads(max(1, cfg.threads))
+    torch.set_num_threads(cfg.threads)   # BenchConfig refuses fewer than 1
     host = machine.describe()
     before = machine.reference_ms()
 

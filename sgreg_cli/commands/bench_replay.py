@@ -82,11 +82,14 @@ def _ensure_bag(job, log) -> None:
         if made == wanted:
             ground_truth_of(job.path)
             return
-        if made is None:
+        if made is not None:
+            changed = sorted(k for k in made.keys() | wanted.keys() if made.get(k) != wanted.get(k))
+            log(f"replacing {job.name}: made with other settings ({', '.join(changed)})")
+        elif _interrupted(job.path):
+            log(f"replacing {job.name}: its making was interrupted (no ground truth yet)")
+        else:
             raise BagSpecError(f"{job.path} is in the way: not a bag made by sgreg make-bag (no "
                                "ground_truth.json with its config); move it or choose another bag_dir")
-        changed = sorted(k for k in made.keys() | wanted.keys() if made.get(k) != wanted.get(k))
-        log(f"replacing {job.name}: made with other settings ({', '.join(changed)})")
         shutil.rmtree(job.path)
     if job.synth is not None and not Path(spec.scan, "points.npy").exists():
         settings = dict(job.synth)
@@ -95,6 +98,12 @@ def _ensure_bag(job, log) -> None:
     job.path.parent.mkdir(parents=True, exist_ok=True)
     log(f"making {job.name}")
     make_bag(spec, job.path)
+
+
+def _interrupted(path: Path) -> bool:
+    """Whether path holds what an interrupted make-bag leaves: nothing but rosbag2's own files
+    (make-bag writes the ground truth last), so that a run resumes where it stopped."""
+    return path.is_dir() and all(p.name == "metadata.yaml" or p.suffix == ".mcap" for p in path.iterdir())
 
 
 def _made_with(path: Path) -> dict | None:

@@ -24,10 +24,9 @@ def run(args) -> int:
     import numpy as np
 
     from sgreg_core.geometry import invert_transform
+    from sgreg_core.plots import figure_path
     from sgreg_core.plots.merged import plot_merged_map
     from sgreg_core.runtime.merge import MergeConfig
-
-    from sgreg_core.plots import figure_path
 
     from ..bags import BagError, final_maps, tf_in_bag
     from ..replay import ground_truth_of

@@ -12,11 +12,11 @@ peer), from the link's first registrable frame.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..config import finite_number
 from ..geometry import invert_transform, is_rigid
 from ..metrics import rre, rte, two_agent_success
 
@@ -100,7 +100,7 @@ def check_ground_truth(gt) -> dict:
     bad = sorted(str(a) for a, T in maps.items() if not is_rigid(T))
     if bad:
         raise ValueError(f"T_scene_map of {', '.join(bad)}: not a rigid 4x4 transform")
-    if not _number(gt.get("t_origin", 0.0)):
+    if not finite_number(gt.get("t_origin", 0.0)):
         raise ValueError(f"t_origin: expected a number, got {gt['t_origin']!r}")
     objects = gt.get("objects")
     if objects is not None and not (isinstance(objects, dict) and all(
@@ -109,15 +109,8 @@ def check_ground_truth(gt) -> dict:
     return gt
 
 
-def _number(x) -> bool:
-    try:
-        return not isinstance(x, bool) and math.isfinite(x)
-    except (TypeError, OverflowError):    # not a number; an int too large for a float
-        return False
-
-
 def _snapshot(s) -> bool:
-    return (isinstance(s, list) and len(s) == 2 and _number(s[0]) and isinstance(s[1], list)
+    return (isinstance(s, list) and len(s) == 2 and finite_number(s[0]) and isinstance(s[1], list)
             and all(isinstance(i, int) and not isinstance(i, bool) for i in s[1]))
 
 

@@ -171,6 +171,15 @@ def _checked(cls, data, where: str) -> dict:
     return data
 
 
+def _buildable(bag_spec: type, spec: dict, where: str) -> None:
+    """A job's make-bag settings build a bag_spec (whose ranges it checks): for every job
+    before any bag is made, not after minutes of making the ones before it."""
+    try:
+        bag_spec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+    except ValueError as exc:
+        raise SuiteError(f"{where}: {exc}") from None
+
+
 def load_suite(path: str | Path, seeds: list[int] | None = None, bag_spec: type | None = None) -> Suite:
     import yaml
 
@@ -220,6 +229,8 @@ def load_suite(path: str | Path, seeds: list[int] | None = None, bag_spec: type 
             for seed in walk_seeds:
                 name = f"{stem}_{walk}_s{seed}"
                 spec = {**defaults, **walk_settings, **extra, "scan": scan, "seed": int(seed)}
+                if bag_spec is not None:
+                    _buildable(bag_spec, spec, f"{where}: {name}")
                 jobs.append(BagJob(name, bag_dir / name, spec, synth, room, capture, walk, int(seed)))
     # bags taken as they are have no walk to seed: other seeds leave them out
     for entry in (doc.get("bags") or []) if seeds is None else []:

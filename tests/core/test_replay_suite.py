@@ -84,6 +84,9 @@ def test_bad_suites_are_refused_in_one_line(tmp_path, text, words):
     ("walks: {w: {opposite: 1}}\nscans: [{synth: {}}]\n", "walks: w: opposite must be true or false"),
     ("scans: [{synth: {}, start_a: [1]}]\n", r"scans\[0\]: start_a must be a list of 2"),
     ("scans: [{scan: 5}]\n", r"scans\[0\]: scan must be a string"),
+    # ranges too, for every bag before any is made (here the second walk's)
+    ("walks: {ok: {speed: 0.5}, bad: {speed: 0}}\nscans: [{synth: {}}]\n",
+     r"synth_apartment1_0_bad_s0: speed \(--speed\) must be a number in"),
 ])
 def test_values_of_the_wrong_type_and_unknown_keys_are_refused_by_name(tmp_path, text, words):
     with pytest.raises(SuiteError, match=words):

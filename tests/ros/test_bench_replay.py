@@ -101,6 +101,13 @@ def test_only_a_bag_the_suite_made_is_replaced(tmp_path):
     res = make_only(suite, tmp_path)
     assert res.returncode == 2 and f"{bag} is in the way: not a bag made by sgreg make-bag" in res.stderr
     assert "Traceback" not in res.stderr and (bag / "notes.txt").read_text() == "mine"
+    # what an interrupted make-bag leaves (the ground truth is written last): a run resumes
+    shutil.rmtree(bag)
+    bag.mkdir()
+    (bag / f"{bag.name}_0.mcap").write_bytes(b"\x89MCAP0\r\n")
+    res = make_only(suite, tmp_path)
+    assert res.returncode == 0 and f"replacing {bag.name}: its making was interrupted" in res.stdout
+    assert (bag / "ground_truth.json").exists()
 
 
 def test_a_changed_synth_setting_makes_a_new_scene_and_bag(tmp_path):

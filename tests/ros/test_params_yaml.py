@@ -65,3 +65,11 @@ def test_an_empty_peer_list_means_discovery_and_names_must_start_topics():
     assert not any(is_agent_id(n) for n in ("1a", "a-b", "a__b", "_a", "", "a/b"))
     assert frame_ok("sgreg_merged") and frame_ok("site/merged")
     assert not any(frame_ok(f) for f in ("", "a//b", "a-b", " merged"))
+
+
+@pytest.mark.parametrize("names", [["_a", "b"], ["a__b", "b"], ["a", "a"], ["1a", "b"]])
+def test_sgreg_agents_refuses_names_the_nodes_would_refuse(names, capsys):
+    from sgreg_cli.main import main
+
+    assert main(["agents", "--names", *names]) == 2       # before any node is started
+    assert capsys.readouterr().err.startswith("sgreg agents: agent names must be distinct agent ids")

@@ -70,6 +70,27 @@ def test_a_corrupted_message_is_reported_and_the_replay_goes_on(tmp_path):
     assert report["wrong_verified"] == 0 and report["success_rate"] > 0
 
 
+def test_a_damaged_chunk_stops_the_replay_with_one_line_and_no_score(tmp_path):
+    """A sealed bag (make-bag writes chunk checksums) damaged half-way: play cannot go past the
+    chunk, so the replay says so and exits 2 instead of scoring the part it played."""
+    import shutil
+
+    from sgreg_cli.bags import seal_chunks
+
+    bad = tmp_path / "bad"
+    shutil.copytree(BAGS / "apartment_opposite", bad)
+    seal_chunks(bad)
+    mcap = next(bad.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 32] = bytes(x ^ 0xFF for x in data[middle:middle + 32])
+    mcap.write_bytes(data)
+    res = subprocess.run(SGREG + ["replay", str(bad), "--json", str(tmp_path / "r.json")],
+                         capture_output=True, text=True, timeout=400)
+    assert res.returncode == 2 and "is damaged" in res.stderr, res.stderr[-2000:]
+    assert "Traceback" not in res.stderr and not (tmp_path / "r.json").exists()
+
+
 def test_four_agents_on_a_building_floor_end_in_one_frame(tmp_path):
     """The shipped 4-agent bag (runs of identical rooms): every agent attached to the merged
     frame on /tf where the truth puts it (a map placed a room width off is the failure the
