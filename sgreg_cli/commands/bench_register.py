@@ -86,6 +86,7 @@ def _json_safe(v):
 def run(args: argparse.Namespace) -> int:
     import json
 
+    import numpy as np
     import torch
     from tqdm import tqdm
 
@@ -116,11 +117,15 @@ def run(args: argparse.Namespace) -> int:
     before = machine.reference_ms()
 
     rows = []
+    during: dict[str, list[float]] = {}     # setting -> reference times taken among its cases
     bar = tqdm(cases, desc="bench-register", unit="case", disable=args.no_progress)
-    for case in bar:
+    for i, case in enumerate(bar):
         bar.set_postfix_str(f"{case.setting} {case.name}")
+        if i % machine.REFERENCE_EVERY == 0:
+            during.setdefault(case.setting, []).append(machine.reference_ms(repeats=3))
         rows += run_case(model, case, cfg)
-    host["reference_ms"] = {"before": before, "after": machine.reference_ms()}
+    host["reference_ms"] = {"before": before, "after": machine.reference_ms(),
+                            "by_setting": {k: float(np.median(v)) for k, v in during.items()}}
     summary = summarize(rows)
     print(format_tables(summary))
     print(f"times: {TIMING_NOTE}")

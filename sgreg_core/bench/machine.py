@@ -2,9 +2,11 @@
 
 Wall times on a shared or throttled machine move by tens of percent between runs of the same
 code: on the development machine the same held-out front-end pairs had a dense median of 284 ms
-one day and 215 ms the next. So a timed benchmark records the machine and the time of a fixed
-reference workload before and after its run: two results are comparable when their reference
-times are, and a run whose reference took 20 % longer ran on a machine 20 % slower.
+one day and 196-215 ms the next, and 286 ms in a run whose reference time rose by 40 % while it
+ran. So a timed benchmark records the machine and the time of a fixed reference workload before
+and after its run (bench-register also every REFERENCE_EVERY cases, reported per setting): two
+results are comparable when their reference times are, and a run whose reference took 20 %
+longer ran on a machine 20 % slower.
 
 The reference workload is a small, seeded copy of what the dense pipeline spends its time on:
 voxelising points, local planes from KD-tree neighbourhoods, and a few layers of a small
@@ -23,6 +25,11 @@ import time
 import numpy as np
 
 from ..geometry import local_planes, voxel_downsample
+
+# a long benchmark times the reference every this many cases too: the machine's speed moved by
+# 40 % within one run of 360 pairs (60.9 -> 85.3 ms), so a median is read beside the speed of
+# the machine while its cases ran
+REFERENCE_EVERY = 30
 
 
 def _workload() -> None:
@@ -82,7 +89,9 @@ def summary_line(machine: dict) -> str:
     """One line for a benchmark's printout."""
     ref = machine.get("reference_ms", {})
     load = machine.get("load_average")
+    during = ", ".join(f"{k} {v:.1f}" for k, v in ref.get("by_setting", {}).items())
     return (f"machine: {machine.get('cpu')}, {machine.get('cores')} cores, load "
             f"{load[0] if load else '?'} at the start; reference workload "
             f"{ref.get('before', float('nan')):.1f} / {ref.get('after', float('nan')):.1f} ms "
-            f"before / after (sgreg_core/bench/machine.py; lower is faster, compare runs by it)")
+            f"before / after" + (f", median among the cases of {during} ms" if during else "")
+            + " (sgreg_core/bench/machine.py; lower is faster, compare runs by it)")

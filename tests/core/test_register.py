@@ -225,6 +225,7 @@ def test_bench_register_schema(tmp_path, capsys):
     host = results["machine"]
     assert host["cores"] >= 1 and host["torch_threads"] == 1 and host["cpu"]
     assert all(0 < host["reference_ms"][k] < 10_000 for k in ("before", "after"))
+    assert set(host["reference_ms"]["by_setting"]) == {"clean"}    # every 30 cases: the first
     assert "reference workload" in printed
     config = json.loads((out / "config.json").read_text())
     assert config["config"]["cases"]["n"] == 2 and config["weights_id"] == results["weights_id"]
