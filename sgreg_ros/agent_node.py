@@ -75,7 +75,7 @@ class AgentNode(SgregNode):
 
     def on_instances(self, raw: bytes) -> None:
         self.map_taken(convert.take_instance_map(raw, self.core.take_map, self.core.refuse,
-                                                 self.core.cfg.name))
+                                                 self.core.cfg.name, self.stamp_clock_ns()))
         if self.core.ready and not self.core.counters["coarse_sent"]:
             # the first graph goes out at once, and the timer starts over: the same graph again
             # at the next tick, a fraction of a second later, would be no new evidence to a peer

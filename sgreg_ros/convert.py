@@ -91,14 +91,19 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
                            scores={i: float(s) for i, s in zip(ids, scores)})
 
 
-def take_instance_map(raw: bytes, take, refuse, agent_id: str) -> str | None:
+# a map stamped further ahead of the node's clock is refused: robots' clocks may disagree by
+# minutes, a stamp years ahead is a broken front-end clock that every result would carry
+MAX_AHEAD_S = 3600.0
+
+
+def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) -> str | None:
     """The one map intake of both nodes of agent `agent_id`: decode an InstanceMap and hand it
     to take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None,
     or the one-line reason the map was refused, counted through refuse(counter, why): bytes
     that do not decode are "malformed_message", fields that do not fit "bad_instance_map", and
     so is a map that names another agent or frame (a remapping slip: registered as the own
-    map, another agent's map verifies the identity as the transform to that agent) or has no
-    stamp."""
+    map, another agent's map verifies the identity as the transform to that agent), has no
+    stamp, or is stamped more than MAX_AHEAD_S after now_ns (the node's clock; 0: not checked)."""
     try:
         msg = decode(raw, InstanceMap)
     except ConversionError as exc:
@@ -106,9 +111,13 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str) -> str | None:
     foreign = _foreign(msg, agent_id)
     if foreign:
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {foreign}")
-    if stamp_to_ns(msg.header.stamp) == 0:   # every result made from it would carry no time
+    stamp = stamp_to_ns(msg.header.stamp)
+    if stamp == 0:   # every result made from it would carry no time
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: header.stamp is "
                                           "0 (unset)")
+    if now_ns > 0 and stamp - now_ns > MAX_AHEAD_S * 1e9:   # now 0: no clock yet (sim time)
+        return refuse("bad_instance_map", f"instance map {msg.sequence} refused: stamped "
+                                          f"{(stamp - now_ns) / 1e9:.0f} s ahead of this node's clock")
     try:
         imap = instance_map_from_msg(msg)
     except ConversionError as exc:

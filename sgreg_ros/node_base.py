@@ -134,6 +134,12 @@ class SgregNode(Node):
         """ROS time (the bag's /clock under use_sim_time): what outputs are stamped with."""
         return self.get_clock().now().nanoseconds
 
+    def stamp_clock_ns(self) -> int:
+        """The clock a map's stamp is checked against (convert.take_instance_map): ROS time,
+        and 0 (no check) under use_sim_time, where a bag's clock need not be its maps'."""
+        clock = self.get_clock()
+        return 0 if clock.ros_time_is_active else clock.now().nanoseconds
+
     def clock_s(self) -> float:
         """What the core's intervals and timeouts run on (runtime/clock.py): the bag's clock
         under use_sim_time, so that a paused or faster bag keeps the link's timing; never

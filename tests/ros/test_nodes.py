@@ -95,7 +95,8 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     other_frame = instance_map_to_msg(maps["b"], "a", 10_003, time.time_ns())
     other_frame.header.frame_id = "b/map"
     bad += [(pub_map, instance_map_to_msg(maps["b"], "b", 10_004, time.time_ns())), (pub_map, other_frame),
-            (pub_map, instance_map_to_msg(maps["a"], "a", 10_005, 0))]       # unstamped
+            (pub_map, instance_map_to_msg(maps["a"], "a", 10_005, 0)),       # unstamped
+            (pub_map, instance_map_to_msg(maps["a"], "a", 10_006, time.time_ns() + 10 * 365 * 86400 * 10**9))]
     bad += [(pub_map, b"\x00\x01garbage"),                              # undecodable
             (pub_x, b"\x00\x01\x00\x00garbage"),
             (pub_x, fake_coarse(50, weights_id="deadbeef0000")),       # other weights
@@ -119,7 +120,7 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     time.sleep(1.0)
     inject()
     reg_a, agent_a = "/a/registration", "/a/agent"
-    wanted = [(agent_a, "bad_instance_map", 6), (agent_a, "malformed_message", 1),
+    wanted = [(agent_a, "bad_instance_map", 7), (agent_a, "malformed_message", 1),
               (reg_a, "malformed_message", 1), (reg_a, "rejected_weights", 1),
               (reg_a, "bad_feature_size", 1), (reg_a, "duplicate_sequence", 1),
               (reg_a, "out_of_order_sequence", 1), (reg_a, "oversized_message", 1),
