@@ -9,7 +9,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
@@ -19,7 +18,7 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer, WriterError
 from sgreg_msgs.msg import InstanceMap
 
-from sgreg_core.geometry import MAX_COORD_M
+from sgreg_core.maps.instance_map import points_problem
 from sgreg_ros import qos
 from sgreg_ros.pointcloud import PointCloudError, unpack_xyz_id
 from .bag_types import typestore
@@ -111,18 +110,6 @@ def read_messages(reader: Reader, conns: list, path):
         raise BagError(f"bag {path} is damaged: {exc}") from None
 
 
-def map_points_problem(points) -> str | None:
-    """Why an instance map of these points from a bag must not be used (NaN, infinite or beyond
-    MAX_COORD_M: damaged bytes decoded), else None. Only the points: an empty map is a real
-    recording, and the nodes judge the rest (validate_instance_map)."""
-    pts = np.asarray(points)
-    if not np.isfinite(pts).all():
-        return "points are NaN or infinite"
-    if pts.size and np.abs(pts).max() > MAX_COORD_M:
-        return f"points lie more than {MAX_COORD_M:g} m from the origin"
-    return None
-
-
 def seal_chunks(bag: str | Path) -> None:
     """Write each chunk's CRC-32 into the bag's MCAP files, where rosbags' writer leaves 0
     ("no checksum"): readers then refuse a damaged chunk instead of decoding flipped bytes into
@@ -176,7 +163,7 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     the bag's start, during the delay too), as `ros2 bag play --clock` does, so that nodes run
     with use_sim_time follow the bag.
     Each message is checked by deserialising it first; one that does not decode, or an instance
-    map whose points are not finite or absurdly far (map_points_problem), is reported and
+    map whose points are not finite or absurdly far (points_problem), is reported and
     skipped, and the rest of the bag plays on. A damaged chunk (many messages compressed
     together) ends play with a BagError: nothing after it can be read.
     `topics` (None: all) that the bag does not hold at all raise BagError."""
@@ -230,7 +217,7 @@ def _message_problem(raw: bytes, cls) -> str | None:
     if not isinstance(msg, InstanceMap):
         return None
     try:
-        return map_points_problem(unpack_xyz_id(msg.points, "instance")[0])
+        return points_problem(unpack_xyz_id(msg.points, "instance")[0])
     except PointCloudError as exc:
         return str(exc)
 
@@ -333,7 +320,7 @@ def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:
                 imap = instance_map_from_msg(deserialize_message(bytes(raw), InstanceMap))
             except (ConversionError, Exception):
                 continue
-            if map_points_problem(imap.points):
+            if points_problem(imap.points):
                 continue
             out.append((t_ns * 1e-9 - t_origin, conn.topic.split("/")[1], imap))
     finally:

@@ -147,8 +147,7 @@ class _Sampler:
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     names = agents_in_bag(bag)
     # a bag's ground truth (none: a recorded bag) is checked before any node starts
-    has_gt = (Path(bag) / "ground_truth.json").exists()
-    origin = ground_truth_of(bag).get("t_origin", 0.0) if has_gt else 0.0
+    origin = (ground_truth_of(bag, required=False) or {}).get("t_origin", 0.0)
     overrides = dict(cfg.overrides)
     keys = None
     if cfg.authenticate and "keystore" not in overrides:
@@ -304,11 +303,14 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                      foreign=dict(fleet.foreign))
 
 
-def ground_truth_of(bag: str | Path) -> dict:
+def ground_truth_of(bag: str | Path, required: bool = True) -> dict | None:
     """The bag's ground_truth.json, checked (replay_score.check_ground_truth) before anything
-    is replayed or scored against it; BagError with a one-line reason."""
+    is replayed or scored against it; BagError with a one-line reason. None when the bag has
+    none and it is not `required` (a recorded bag)."""
     path = Path(bag) / "ground_truth.json"
     if not path.exists():
+        if not required:
+            return None
         raise BagError(f"{bag} has no ground_truth.json (made by sgreg make-bag)")
     try:
         return check_ground_truth(json.loads(path.read_text()))

@@ -10,6 +10,7 @@ Public API:
         from_dict checks each value against its field's type (NaN never) and a `param`
         field's range or choices, naming the field
     finite_number(x) -> bool                 a real number, not a bool, finite
+    range_problem(value, low, high, choices) -> str | None   outside a `param` field's range
     check_types(cls, data, where) -> None   ValueError naming the first key of a (partial) dict
                                             that is not a field of cls or whose value does not
                                             fit the field's type (sections checked in turn)
@@ -75,17 +76,25 @@ def from_dict(cls, data: Mapping | None):
     return cls(**kwargs)
 
 
-def _check_range(cls, f: dataclasses.Field, value) -> None:
-    """A `param` field's number must lie in its declared range, its string among its choices
-    (the nodes refuse the same values as ROS parameters)."""
-    if PARAM not in f.metadata:
-        return
-    _, low, high, choices, _ = f.metadata[PARAM]
+def range_problem(value, low: float | None, high: float | None, choices: tuple) -> str | None:
+    """Why `value` is outside a `param` field's declared range (a number; NaN never inside) or
+    its choices, else None: one rule for configs (from_dict) and the nodes' parameters."""
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if number and ((low is not None and value < low) or (high is not None and value > high)):
-        raise ValueError(f"{cls.__name__}.{f.name} must lie in [{low}, {high}], got {value!r}")
-    if choices and isinstance(value, str) and value not in choices:
-        raise ValueError(f"{cls.__name__}.{f.name} must be one of {list(choices)}, got {value!r}")
+    if number and not ((low is None or value >= low) and (high is None or value <= high)):
+        return f"must lie in [{low}, {high}]"
+    if choices and value not in choices:
+        return f"must be one of {list(choices)}"
+    return None
+
+
+def _check_range(cls, f: dataclasses.Field, value) -> None:
+    """A `param` field's value must lie in its declared range or among its choices (the nodes
+    refuse the same values as ROS parameters)."""
+    if PARAM in f.metadata:
+        _, low, high, choices, _ = f.metadata[PARAM]
+        problem = range_problem(value, low, high, choices)
+        if problem:
+            raise ValueError(f"{cls.__name__}.{f.name} {problem}, got {value!r}")
 
 
 def _check_keys(cls, data: Mapping, where: str) -> None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from sgreg_core.config import node_params
+from sgreg_core.config import node_params, range_problem
 
 
 AGENT_ID = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
@@ -57,10 +57,9 @@ def check(p: Param, value):
         value = []   # rclpy gives an empty array ("-p peers:=[]") no type: None
     if type(value) is not type(p.default) and not (isinstance(p.default, float) and type(value) is int):
         raise ParameterError(f"parameter '{p.name}' must be {type(p.default).__name__}, got {value!r}")
-    if p.low is not None and not (p.low <= value <= p.high):
-        raise ParameterError(f"parameter '{p.name}' = {value} is outside [{p.low}, {p.high}]")
-    if p.choices and value not in p.choices:
-        raise ParameterError(f"parameter '{p.name}' = {value!r} is not one of {p.choices}")
+    problem = range_problem(value, p.low, p.high, p.choices)
+    if problem:
+        raise ParameterError(f"parameter '{p.name}' {problem}, got {value!r}")
     return float(value) if isinstance(p.default, float) else value
 
 

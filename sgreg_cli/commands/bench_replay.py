@@ -65,6 +65,7 @@ def _ensure_bag(job, log) -> None:
     made with other settings, never anything else; check the ground truth of every bag."""
     import shutil
 
+    from sgreg_core.bench.replay_suite import build_spec
     from sgreg_core.config import from_dict
     from sgreg_core.maps.instance_map import write_instance_map
     from sgreg_core.simulation.synth import SynthConfig, generate_scene
@@ -74,8 +75,7 @@ def _ensure_bag(job, log) -> None:
     if job.spec is None:
         ground_truth_of(job.path)
         return
-    spec = BagSpec(**{k: tuple(v) if k in ("start_a", "start_b") and v is not None else v
-                      for k, v in job.spec.items()})
+    spec = build_spec(BagSpec, job.spec)
     wanted = json.loads(json.dumps(asdict(spec)))
     if job.path.exists():
         made = _made_with(job.path)

@@ -34,8 +34,7 @@ def run(args) -> int:
     bag = Path(args.bag)
     try:
         figure_path(args.png)
-        # a made bag's ground truth; a recorded one has none
-        gt = ground_truth_of(bag) if (bag / "ground_truth.json").exists() else None
+        gt = ground_truth_of(bag, required=False)     # a recorded bag has none
         clouds = final_maps(bag, gt)
         tf = tf_in_bag(bag)
     except (BagError, OSError, ValueError) as exc:

@@ -33,6 +33,7 @@ Public API:
                                   (commands.make_bag.BagSpec) that defaults, walks and scans
                                   entries are checked against; a synthetic scene's folder
                                   (and so its bags' names and specs) names every setting
+    build_spec(bag_spec, spec) -> the make-bag settings of a job (lists as tuples)
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
@@ -171,11 +172,17 @@ def _checked(cls, data, where: str) -> dict:
     return data
 
 
+def build_spec(bag_spec: type, spec: dict):
+    """The bag_spec (make-bag settings dataclass) of a job's spec, its lists as tuples (as YAML
+    and JSON give them); raises what bag_spec raises for a setting out of range."""
+    return bag_spec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+
+
 def _buildable(bag_spec: type, spec: dict, where: str) -> None:
     """A job's make-bag settings build a bag_spec (whose ranges it checks): for every job
     before any bag is made, not after minutes of making the ones before it."""
     try:
-        bag_spec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+        build_spec(bag_spec, spec)
     except ValueError as exc:
         raise SuiteError(f"{where}: {exc}") from None
 

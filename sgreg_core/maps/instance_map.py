@@ -5,6 +5,7 @@ Public API:
     read_instance_map(path) -> InstanceMap   points.npy, instance.npy, instances.json, colors.npy?
                                              (extra files such as semantic.npy are ignored)
     write_instance_map(imap, path) -> None   the same layout; creates the directory
+    points_problem(points) -> str | None     why points cannot be used (not finite, too far)
     validate_instance_map(imap, where="instance map") -> InstanceMap
                                              shapes, dtypes, finite points, >= 1 labelled point;
                                              returns a copy with canonical dtypes
@@ -31,6 +32,17 @@ class InstanceMapError(ValueError):
     """A malformed instance map; the message is one line and names the file."""
 
 
+def points_problem(points) -> str | None:
+    """Why map points cannot be used (NaN or infinite, or beyond MAX_COORD_M), else None."""
+    pts = np.asarray(points)
+    if not np.isfinite(pts).all():
+        bad = int((~np.isfinite(pts)).any(axis=1).sum())
+        return f"{bad} points are NaN or infinite"
+    if pts.size and np.abs(pts).max() > MAX_COORD_M:   # a building, not a continent: grids over it must fit
+        return f"points lie more than {MAX_COORD_M:g} m from the origin"
+    return None
+
+
 def labelled_mask(imap: InstanceMap) -> np.ndarray:
     ids = np.fromiter(imap.labels.keys(), dtype=np.int64, count=len(imap.labels))
     return (imap.instance > 0) & np.isin(imap.instance, ids)
@@ -45,11 +57,9 @@ def validate_instance_map(imap: InstanceMap, where: str = "instance map") -> Ins
         raise InstanceMapError(f"{where}: points must be float, got dtype {pts.dtype}")
     if len(pts) == 0:
         raise InstanceMapError(f"{where}: empty map (0 points)")
-    if not np.isfinite(pts).all():
-        bad = int((~np.isfinite(pts)).any(axis=1).sum())
-        raise InstanceMapError(f"{where}: {bad} points are NaN or infinite")
-    if np.abs(pts).max() > MAX_COORD_M:   # a building, not a continent: grids over it must fit
-        raise InstanceMapError(f"{where}: points lie more than {MAX_COORD_M:g} m from the origin")
+    problem = points_problem(pts)
+    if problem:
+        raise InstanceMapError(f"{where}: {problem}")
     inst = np.asarray(imap.instance)
     if inst.shape != (len(pts),):
         raise InstanceMapError(f"{where}: instance must have shape ({len(pts)},), got {inst.shape}")
