@@ -70,8 +70,7 @@ def from_dict(cls, data: Mapping | None):
                 raise ValueError(f"{cls.__name__}.{key} must be {_describe(hint, finite=False)}, "
                                  f"got {value!r}")
             _check_range(cls, fields[key], value)
-            if typing.get_origin(hint) is tuple:
-                value = tuple(value)
+            value = _as_hinted(hint, value)
         kwargs[key] = value
     return cls(**kwargs)
 
@@ -114,6 +113,20 @@ def check_types(cls, data: Mapping, where: str) -> None:
             check_types(hint, value, f"{where}: {key}")
         elif not _fits(hint, value):
             raise ValueError(f"{where}: {key} must be {_describe(hint)}, got {value!r}")
+
+
+def _as_hinted(hint, value):
+    """A value that _fits hint, as the hint's type: a whole number given for a float is that
+    float (YAML's `1000` and `1000.0` are one setting: one saved config, one digest), a list
+    for a tuple that tuple."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if origin is tuple and isinstance(value, (list, tuple)):
+        if args and args[-1] is Ellipsis:
+            return tuple(_as_hinted(args[0], v) for v in value)
+        return tuple(_as_hinted(a, v) for a, v in zip(args, value)) if args else tuple(value)
+    return value
 
 
 def _fits(hint, value, finite: bool = True) -> bool:

@@ -3,7 +3,8 @@
 --set overrides a PipelineConfig entry (e.g. pose.footprint_rim=1; coarse_pose.* with --coarse).
 `sgreg register --pairs FILE [--json OUT]`: many pairs (one "SRC_DIR REF_DIR" per line), the
 model loaded once; --json then writes a list of results, and a pair with bad input (or one
-that fails in the pipeline) is an entry with an "error" instead of the end of the run.
+that fails in the pipeline) is an entry with an "error" instead of the end of the run; so
+is a single pair that fails in the pipeline (one line on stderr, exit 2).
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
@@ -121,10 +122,10 @@ def run(args: argparse.Namespace) -> int:
             result, draw = _register_one(model, cfg, src_dir, ref_dir, *maps, startup_ms,
                                          single=not args.pairs)
         except Exception as exc:
-            if not args.pairs:
-                raise
-            # one pair that breaks the pipeline must not lose the results of the others
-            results.append(_pair_error(src_dir, ref_dir, "failed", f"{type(exc).__name__}: {exc}"))
+            # a pair that breaks the pipeline is a result too (an "error" entry, exit 2), and with
+            # --pairs it must not lose the results of the others
+            results.append(_pair_error(src_dir, ref_dir, "failed", f"{type(exc).__name__}: {exc} "
+                                       f"(at {_where(exc)}; please report it with the two maps)"))
             codes.append(2)
             continue
         results.append(result)
@@ -140,12 +141,21 @@ def run(args: argparse.Namespace) -> int:
             out.write_text(json.dumps(results if args.pairs else results[0], indent=1) + "\n")
         except OSError as exc:
             return _fail(f"cannot write {out}: {exc.strerror or exc}")
-    if args.png:
+    if args.png and codes[0] != 2:
         try:
             draw(args.png)
         except (OSError, ValueError, RuntimeError) as exc:
             return _fail(f"cannot draw {args.png}: {' '.join(str(exc).split())}")
     return max(codes)
+
+
+def _where(exc: BaseException) -> str:
+    """file:line of the innermost frame that raised exc: enough to report a bug by."""
+    import os
+    import traceback
+
+    frame = traceback.extract_tb(exc.__traceback__)[-1]
+    return f"{os.path.basename(frame.filename)}:{frame.lineno}"
 
 
 def _pair_error(src_dir: str, ref_dir: str, what: str, message: str) -> dict:

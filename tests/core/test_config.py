@@ -35,6 +35,10 @@ def test_values_of_the_right_type_are_taken():
                                      "pose": {"clique_deltas": [0.2, 1]}, "geometric": {"turns_deg": [180]}})
     assert cfg.min_nodes == 4 and cfg.graph.voxel_size == 0.1 and cfg.graph.box_angles == 45
     assert cfg.pose.clique_deltas == (0.2, 1) and cfg.geometric.turns_deg == (180,)
+    # a whole number given for a float is that float: the saved config and its digests are the
+    # same whether a YAML file said 45 or 45.0
+    assert type(cfg.pose.clique_deltas[1]) is float and type(cfg.graph.box_angles) is int
+    assert type(cfg.min_nodes) is int
     assert from_dict(PipelineConfig, {"graph": {"voxel_size": 0.5}}).graph.voxel_size == 0.5   # the bound itself
     # infinity is a setting (a gate that never closes), NaN never
     assert from_dict(PipelineConfig, {"pose": {"gnc_inlier_gate": math.inf}}).pose.gnc_inlier_gate == math.inf

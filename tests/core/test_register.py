@@ -176,6 +176,27 @@ def test_one_broken_pair_loses_no_other_result(data, tmp_path, capsys, monkeypat
     assert "bad input" in err and "failed: RuntimeError" in err and "Traceback" not in err
 
 
+def test_one_pair_that_breaks_the_pipeline_is_one_line_and_a_result(data, tmp_path, capsys,
+                                                                   monkeypatch):
+    """A single pair that fails in the pipeline: exit 2, one line naming the error and where it
+    was raised, the JSON written with the error, no picture and no traceback."""
+    root, _ = data
+
+    def breaks(*args, **kwargs):
+        raise RuntimeError("a bug in the pipeline")
+
+    monkeypatch.setattr(register_cmd, "_register_one", breaks)
+    out = tmp_path / "one.json"
+    code = main(["register", str(root / "src"), str(root / "ref"), "--json", str(out),
+                 "--png", str(tmp_path / "r.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert "failed: RuntimeError: a bug in the pipeline (at test_register.py:" in err
+    result = json.loads(out.read_text())
+    assert result["success"] is False and "a bug in the pipeline" in result["error"]
+    assert not (tmp_path / "r.png").exists()
+
+
 @pytest.mark.parametrize("png", ["r.txt", "a_file/r.png"])
 def test_a_picture_that_cannot_be_written_is_refused_before_registering(data, tmp_path, capsys, png):
     root, _ = data

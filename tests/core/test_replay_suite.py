@@ -109,6 +109,9 @@ def test_every_synth_setting_names_the_scene(tmp_path):
     assert len({j.spec["scan"] for j in (plain, sparse, dense, noisy)}) == 4
     assert {j.room for j in (plain, sparse, dense, noisy)} == {"synth_office2_3"}
     assert sparse.name.startswith("synth_office2_3_") and sparse.synth["density"] == 200
+    # YAML's 1000 and 1000.0 are one setting: one scene folder and bag, not two
+    same = jobs("{kind: office, rooms: 2, seed: 3, density: 1000.0}")[0]
+    assert (same.name, same.spec["scan"]) == (dense.name, dense.spec["scan"])
 
 
 def test_shipped_suites_keep_their_bag_names():
