@@ -258,6 +258,28 @@ REQUEST_COUNTERS = {"sent": "requests", "retried": "request_retry", "gave_up": "
                     "refused_over_budget": "request_over_budget"}
 
 
+# why a frame's estimate, right by ground truth, was not published as verified: the link rules
+# of runtime/peers.py (time, the peer's word, the merged frame); any other reason is the verdict's
+LINK_RULES = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles")
+
+
+def missed(frames: list[dict]) -> dict:
+    """The registrable frames that did not succeed, by cause and reason: "no_right_estimate"
+    (the estimate was wrong, and refused), "right_refused" (right, but the verdict refused it),
+    "right_held" (right and passed the verdict, but held by the link rules: LINK_RULES). Tells a
+    miss the estimator caused from one that trust cost."""
+    out: dict[str, Counter] = {"no_right_estimate": Counter(), "right_refused": Counter(),
+                               "right_held": Counter()}
+    for f in frames:
+        if not f.get("registrable") or f["success"]:
+            continue
+        reason = f.get("reason") or "unknown"
+        cause = "no_right_estimate" if not f["correct"] else \
+            "right_held" if reason in LINK_RULES else "right_refused"
+        out[cause][reason] += 1
+    return {cause: dict(c.most_common()) for cause, c in out.items()}
+
+
 def _median(values) -> float | None:
     v = [x for x in values if x is not None and np.isfinite(x)]
     return float(np.median(v)) if v else None
@@ -288,6 +310,7 @@ def _row(results: list[dict]) -> dict:
         "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
         "dense_latency_ms": _median(r["dense_latency_ms"]["median"] for r in results),
         "dense_requests": _requests(results),
+        "missed": missed(frames),
     }
 
 
@@ -363,6 +386,14 @@ def format_summary(summary: dict) -> str:
                  f"given up after every retry; refused by the answering agent: "
                  f"{req['refused_within_interval']} within its interval, {req['refused_over_budget']} "
                  "over its budget")
+    miss = summary["rows"]["all"].get("missed")
+    if miss and any(miss.values()):
+        def said(cause: str) -> str:
+            n = sum(miss[cause].values())
+            return f"{n}" + (f" ({', '.join(f'{r} {k}' for r, k in miss[cause].items())})" if n else "")
+        text += (f"\nregistrable frames missed: no right estimate {said('no_right_estimate')}; right "
+                 f"but refused by the verdict {said('right_refused')}; right but held by the link "
+                 f"rules {said('right_held')}")
     return text
 
 
