@@ -9,6 +9,8 @@ Public API:
     from_dict(cls, data) / to_dict(cfg) / apply_overrides(data, ["a.b=1", ...])
         from_dict checks each value against its field's type (NaN never) and a `param`
         field's range or choices, naming the field
+    as_hinted(hint, value) -> value          a whole number for a float field as that float,
+                                            a list for a tuple field as that tuple
     finite_number(x) -> bool                 a real number, not a bool, finite
     range_problem(value, low, high, choices) -> str | None   outside a `param` field's range
     check_types(cls, data, where) -> None   ValueError naming the first key of a (partial) dict
@@ -70,7 +72,10 @@ def from_dict(cls, data: Mapping | None):
                 raise ValueError(f"{cls.__name__}.{key} must be {_describe(hint, finite=False)}, "
                                  f"got {value!r}")
             _check_range(cls, fields[key], value)
-            value = _as_hinted(hint, value)
+            try:
+                value = as_hinted(hint, value)
+            except OverflowError:
+                raise ValueError(f"{cls.__name__}.{key} is too large for a number, got {value!r}") from None
         kwargs[key] = value
     return cls(**kwargs)
 
@@ -115,17 +120,18 @@ def check_types(cls, data: Mapping, where: str) -> None:
             raise ValueError(f"{where}: {key} must be {_describe(hint)}, got {value!r}")
 
 
-def _as_hinted(hint, value):
-    """A value that _fits hint, as the hint's type: a whole number given for a float is that
-    float (YAML's `1000` and `1000.0` are one setting: one saved config, one digest), a list
-    for a tuple that tuple."""
+def as_hinted(hint, value):
+    """A value that fits `hint` (float or tuple[...] fields; others are returned as they are),
+    as the hint's type: a whole number given for a float is that float (YAML's `1000` and
+    `1000.0` are one setting: one saved config, one digest), a list for a tuple that tuple, each
+    element as its own hint. OverflowError for a whole number too large for a float."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if origin is tuple and isinstance(value, (list, tuple)):
         if args and args[-1] is Ellipsis:
-            return tuple(_as_hinted(args[0], v) for v in value)
-        return tuple(_as_hinted(a, v) for a, v in zip(args, value)) if args else tuple(value)
+            return tuple(as_hinted(args[0], v) for v in value)
+        return tuple(as_hinted(a, v) for a, v in zip(args, value)) if args else tuple(value)
     return value
 
 

@@ -9,7 +9,8 @@ is a single pair that fails in the pipeline (one line on stderr, exit 2).
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
 fitness, node pairs). Exit status: 0 registered, 1 not registered (the result is still
-printed and written), 2 bad input (one line on stderr). timing_ms covers the registration
+printed and written), 2 bad input or a failure in the pipeline (one line on stderr; a failure
+is written to --json as an "error"). timing_ms covers the registration
 (graphs, encoding, matching, pose); loading the network and the text encoder is startup_ms.
 --png is checked before registering and drawn after --json is written, so that a picture that
 cannot be drawn loses no result.
@@ -124,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
         except Exception as exc:
             # a pair that breaks the pipeline is a result too (an "error" entry, exit 2), and with
             # --pairs it must not lose the results of the others
-            results.append(_pair_error(src_dir, ref_dir, "failed", f"{type(exc).__name__}: {exc} "
+            what = " ".join(str(exc).split())
+            results.append(_pair_error(src_dir, ref_dir, "failed", f"{type(exc).__name__}: {what} "
                                        f"(at {_where(exc)}; please report it with the two maps)"))
             codes.append(2)
             continue
@@ -150,12 +152,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _where(exc: BaseException) -> str:
-    """file:line of the innermost frame that raised exc: enough to report a bug by."""
-    import os
+    """file:line where exc was raised, as a bug report needs it: the innermost frame in sgreg's
+    own packages, then the frame it came from where that lies elsewhere (a library)."""
     import traceback
+    from pathlib import Path
 
-    frame = traceback.extract_tb(exc.__traceback__)[-1]
-    return f"{os.path.basename(frame.filename)}:{frame.lineno}"
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if {"sgreg_core", "sgreg_cli", "sgreg_ros"} & set(Path(f.filename).parts)]
+    at = [f for f in (ours[-1] if ours else None, frames[-1]) if f is not None]
+    return " -> ".join(dict.fromkeys(f"{Path(f.filename).name}:{f.lineno}" for f in at))
 
 
 def _pair_error(src_dir: str, ref_dir: str, what: str, message: str) -> dict:

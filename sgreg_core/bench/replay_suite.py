@@ -33,7 +33,9 @@ Public API:
                                   (commands.make_bag.BagSpec) that defaults, walks and scans
                                   entries are checked against; a synthetic scene's folder
                                   (and so its bags' names and specs) names every setting
-    build_spec(bag_spec, spec) -> the make-bag settings of a job (lists as tuples)
+    build_spec(bag_spec, spec) -> the make-bag settings of a job (each value as its field's type)
+    missed(frames) -> dict        registrable frames not verified: a wrong estimate, a right one
+                                  the verdict refused, or one the runtime's rules held (RUNTIME_RULES)
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
@@ -53,7 +55,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import check_types, from_dict, to_dict
+import typing
+
+from ..config import as_hinted, check_types, from_dict, to_dict
 from ..simulation.synth import SynthConfig
 
 SCENE = re.compile(r"(scene\d{4})_\d{2}")
@@ -173,9 +177,14 @@ def _checked(cls, data, where: str) -> dict:
 
 
 def build_spec(bag_spec: type, spec: dict):
-    """The bag_spec (make-bag settings dataclass) of a job's spec, its lists as tuples (as YAML
-    and JSON give them); raises what bag_spec raises for a setting out of range."""
-    return bag_spec(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()})
+    """The bag_spec (make-bag settings dataclass) of a job's spec, each value as its field's
+    type (lists as tuples, as YAML and JSON give them; `1` for a float as 1.0); raises what
+    bag_spec raises for a setting out of range."""
+    hints = typing.get_type_hints(bag_spec)
+    try:
+        return bag_spec(**{k: as_hinted(hints[k], v) if k in hints else v for k, v in spec.items()})
+    except OverflowError as exc:
+        raise ValueError(f"a setting is too large for a number: {exc}") from None
 
 
 def _buildable(bag_spec: type, spec: dict, where: str) -> None:
@@ -258,24 +267,27 @@ REQUEST_COUNTERS = {"sent": "requests", "retried": "request_retry", "gave_up": "
                     "refused_over_budget": "request_over_budget"}
 
 
-# why a frame's estimate, right by ground truth, was not published as verified: the link rules
-# of runtime/peers.py (time, the peer's word, the merged frame); any other reason is the verdict's
-LINK_RULES = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles")
+# reasons of runtime/peers.py, not the verdict's, for not publishing an estimate as verified:
+# the link rules (time, the peer's word, the merged frame) and its own gates (too few node
+# matches to try; no points of the peer to verify on)
+RUNTIME_RULES = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles",
+                 "no_peer_cloud_to_verify", "too_few_matches")
 
 
 def missed(frames: list[dict]) -> dict:
-    """The registrable frames that did not succeed, by cause and reason: "no_right_estimate"
-    (the estimate was wrong, and refused), "right_refused" (right, but the verdict refused it),
-    "right_held" (right and passed the verdict, but held by the link rules: LINK_RULES). Tells a
-    miss the estimator caused from one that trust cost."""
-    out: dict[str, Counter] = {"no_right_estimate": Counter(), "right_refused": Counter(),
+    """The registrable frames whose estimate was not published as verified, by cause and reason:
+    "wrong_estimate" (wrong by ground truth, and not published), "right_refused" (right, but the
+    verdict refused it), "right_held" (right, but held by the runtime's rules: RUNTIME_RULES).
+    Tells a miss the estimator caused from one that trust cost. Wrong estimates published as
+    verified are not here: they are the reports' wrong_verified."""
+    out: dict[str, Counter] = {"wrong_estimate": Counter(), "right_refused": Counter(),
                                "right_held": Counter()}
     for f in frames:
-        if not f.get("registrable") or f["success"]:
+        if not f.get("registrable") or f["verified"]:
             continue
         reason = f.get("reason") or "unknown"
-        cause = "no_right_estimate" if not f["correct"] else \
-            "right_held" if reason in LINK_RULES else "right_refused"
+        cause = "wrong_estimate" if not f["correct"] else \
+            "right_held" if reason in RUNTIME_RULES else "right_refused"
         out[cause][reason] += 1
     return {cause: dict(c.most_common()) for cause, c in out.items()}
 
@@ -391,9 +403,9 @@ def format_summary(summary: dict) -> str:
         def said(cause: str) -> str:
             n = sum(miss[cause].values())
             return f"{n}" + (f" ({', '.join(f'{r} {k}' for r, k in miss[cause].items())})" if n else "")
-        text += (f"\nregistrable frames missed: no right estimate {said('no_right_estimate')}; right "
-                 f"but refused by the verdict {said('right_refused')}; right but held by the link "
-                 f"rules {said('right_held')}")
+        text += (f"\nregistrable frames not verified: wrong estimate {said('wrong_estimate')}; right "
+                 f"but refused by the verdict {said('right_refused')}; right but held by the "
+                 f"runtime's rules {said('right_held')}")
     return text
 
 

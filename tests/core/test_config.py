@@ -23,6 +23,7 @@ from sgreg_core.pipeline import PipelineConfig
     ({"geometric": {"enabled": "yes"}}, "GeometricConfig.enabled must be true or false"),
     ({"pose": {"clique_deltas": [0.2, "x"]}}, "PoseConfig.clique_deltas must be a list, each a number"),
     ({"pose": {"clique_deltas": 0.2}}, "PoseConfig.clique_deltas must be a list, each a number"),
+    ({"pose": {"gnc_inlier_gate": 10 ** 400}}, "PoseConfig.gnc_inlier_gate is too large for a number"),
 ])
 def test_a_value_of_the_wrong_type_or_range_is_refused_naming_the_field(data, field):
     with pytest.raises(ValueError) as err:

@@ -183,7 +183,7 @@ def test_one_pair_that_breaks_the_pipeline_is_one_line_and_a_result(data, tmp_pa
     root, _ = data
 
     def breaks(*args, **kwargs):
-        raise RuntimeError("a bug in the pipeline")
+        raise RuntimeError("a bug in the pipeline\n  spread over lines")
 
     monkeypatch.setattr(register_cmd, "_register_one", breaks)
     out = tmp_path / "one.json"
@@ -191,7 +191,8 @@ def test_one_pair_that_breaks_the_pipeline_is_one_line_and_a_result(data, tmp_pa
                  "--png", str(tmp_path / "r.png")])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
-    assert "failed: RuntimeError: a bug in the pipeline (at test_register.py:" in err
+    assert "failed: RuntimeError: a bug in the pipeline spread over lines (at register.py:" in err
+    assert " -> test_register.py:" in err      # sgreg's frame, then the one it called that raised
     result = json.loads(out.read_text())
     assert result["success"] is False and "a bug in the pipeline" in result["error"]
     assert not (tmp_path / "r.png").exists()

@@ -157,30 +157,29 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
     rows = summarize(results, synth_held)["rows"]
     assert rows["the other scenes"]["registrable_frames"] == 2 and "rooms seen in training" not in rows
     assert s["rows"]["all"]["dense_requests"] is None      # no bag reports counters
-    # the two registrable misses: a wrong estimate, refused (no reason given), and a wrong one verified
-    assert s["rows"]["all"]["missed"] == {"no_right_estimate": {"unknown": 2}, "right_refused": {},
+    # of the two registrable misses, the wrong estimate verified is wrong_verified, not a miss
+    assert s["rows"]["all"]["missed"] == {"wrong_estimate": {"unknown": 1}, "right_refused": {},
                                           "right_held": {}}
-    rel = reliability([f for r in results.values() for f in r["frames"]], bins=2)
-    assert rel["n"] == 5 and rel["bins"][0]["n"] == 2 and rel["bins"][1]["n"] == 3
-    assert np.isclose(rel["bins"][1]["correct"], 2 / 3)
 
 
-def test_misses_tell_the_estimator_from_the_verdict_and_the_link_rules():
+def test_misses_tell_the_estimator_from_the_verdict_and_the_runtime_rules():
     def f(correct, reason, registrable=True):
         return {**frame(correct, reason == "ok", registrable, 0.5), "reason": reason}
 
     frames = [f(True, "ok"), f(False, "too_few_inliers"), f(False, "too_few_inliers"),
               f(True, "low_confidence"), f(True, "awaiting_confirmation"), f(True, "disputed_by_cycles"),
-              f(False, "awaiting_confirmation"), f(True, "low_confidence", registrable=False)]
+              f(True, "no_peer_cloud_to_verify"), f(False, "awaiting_confirmation"),
+              f(False, "ok"), f(True, "low_confidence", registrable=False)]
     assert missed(frames) == {
-        "no_right_estimate": {"too_few_inliers": 2, "awaiting_confirmation": 1},
+        "wrong_estimate": {"too_few_inliers": 2, "awaiting_confirmation": 1},
         "right_refused": {"low_confidence": 1},
-        "right_held": {"awaiting_confirmation": 1, "disputed_by_cycles": 1}}
+        "right_held": {"awaiting_confirmation": 1, "disputed_by_cycles": 1, "no_peer_cloud_to_verify": 1}}
     suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
-    text = format_summary(summarize({"b": report(frames, 0, {})}, suite))
-    assert ("registrable frames missed: no right estimate 3 (too_few_inliers 2, awaiting_confirmation "
-            "1); right but refused by the verdict 1 (low_confidence 1); right but held by the link "
-            "rules 2 (awaiting_confirmation 1, disputed_by_cycles 1)") in text
+    text = format_summary(summarize({"b": report(frames, 1, {})}, suite))
+    assert ("registrable frames not verified: wrong estimate 3 (too_few_inliers 2, "
+            "awaiting_confirmation 1); right but refused by the verdict 1 (low_confidence 1); right "
+            "but held by the runtime's rules 3 (awaiting_confirmation 1, disputed_by_cycles 1, "
+            "no_peer_cloud_to_verify 1)") in text
 
 
 def test_summary_adds_up_dense_requests_over_agents_and_bags(tmp_path):
