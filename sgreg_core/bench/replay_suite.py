@@ -403,9 +403,9 @@ def format_summary(summary: dict) -> str:
         def said(cause: str) -> str:
             n = sum(miss[cause].values())
             return f"{n}" + (f" ({', '.join(f'{r} {k}' for r, k in miss[cause].items())})" if n else "")
-        text += (f"\nregistrable frames not verified: wrong estimate {said('wrong_estimate')}; right "
-                 f"but refused by the verdict {said('right_refused')}; right but held by the "
-                 f"runtime's rules {said('right_held')}")
+        text += (f"\nregistrable frames not verified:\n  wrong estimate: {said('wrong_estimate')}\n"
+                 f"  right, refused by the verdict: {said('right_refused')}\n"
+                 f"  right, held by the runtime's rules: {said('right_held')}")
     return text
 
 

@@ -176,9 +176,10 @@ def test_misses_tell_the_estimator_from_the_verdict_and_the_runtime_rules():
         "right_held": {"awaiting_confirmation": 1, "disputed_by_cycles": 1, "no_peer_cloud_to_verify": 1}}
     suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
     text = format_summary(summarize({"b": report(frames, 1, {})}, suite))
-    assert ("registrable frames not verified: wrong estimate 3 (too_few_inliers 2, "
-            "awaiting_confirmation 1); right but refused by the verdict 1 (low_confidence 1); right "
-            "but held by the runtime's rules 3 (awaiting_confirmation 1, disputed_by_cycles 1, "
+    assert ("registrable frames not verified:\n"
+            "  wrong estimate: 3 (too_few_inliers 2, awaiting_confirmation 1)\n"
+            "  right, refused by the verdict: 1 (low_confidence 1)\n"
+            "  right, held by the runtime's rules: 3 (awaiting_confirmation 1, disputed_by_cycles 1, "
             "no_peer_cloud_to_verify 1)") in text
 
 
