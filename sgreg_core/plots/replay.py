@@ -45,8 +45,9 @@ def plot_replay(score, timeline, out_path, title: str = "") -> None:
 
 
 def plot_suite(summary: dict, out_path) -> None:
-    """A replay suite at a glance: success over registrable frames per bag (wrong verified
-    marked), the reliability of the stated confidence, and time to first success per bag."""
+    """A replay suite at a glance: per bag, its registrable frames by outcome (verified and
+    right, then the ones not verified by cause: replay_suite.missed, then wrong verified), the
+    reliability of the stated confidence, and time to first success per bag."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -57,21 +58,36 @@ def plot_suite(summary: dict, out_path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(16, max(4.5, 0.17 * len(names) + 1.5)),
                              gridspec_kw={"width_ratios": [2.2, 1.3, 1.3]})
     y = np.arange(len(names))
-    rate = np.array([np.nan if bags[n]["success_rate_registrable"] is None
-                     else 100 * bags[n]["success_rate_registrable"] for n in names])
+    # shares of each bag's registrable frames, left to right: what trust cost is next to success
+    parts = [("verified, right", "tab:green"), ("right, held by the runtime's rules", "yellowgreen"),
+             ("right, refused by the verdict", "orange"), ("wrong estimate, not verified", "lightgray"),
+             ("wrong, verified", "tab:red")]
+    counts = np.zeros((len(names), len(parts)))
+    for i, n in enumerate(names):
+        b, miss = bags[n], bags[n].get("missed") or {}
+        reg = b["registrable_frames"]
+        ok = round((b["success_rate_registrable"] or 0.0) * reg)
+        held, refused, wrong_est = (sum(miss.get(k, {}).values())
+                                    for k in ("right_held", "right_refused", "wrong_estimate"))
+        counts[i] = ok, held, refused, wrong_est, max(reg - ok - held - refused - wrong_est, 0)
+    shares = 100 * counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+    left = np.zeros(len(names))
+    for k, (label, color) in enumerate(parts):
+        axes[0].barh(y, shares[:, k], left=left, color=color, label=label)
+        left += shares[:, k]
     wrong = np.array([bags[n]["wrong_verified"] for n in names])
-    axes[0].barh(y, np.nan_to_num(rate), color=np.where(wrong > 0, "tab:red", "tab:green"))
     for i in np.flatnonzero(wrong):
         axes[0].text(2, y[i], f"{wrong[i]} wrong verified", va="center", fontsize=7, color="white")
+    axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, fontsize=7, frameon=False)
     axes[0].set_yticks(y, names, fontsize=6)
     axes[0].invert_yaxis()
     axes[0].axvline(85, color="gray", ls="--", lw=1)
     axes[0].set_xlim(0, 100)
-    axes[0].set_xlabel("success over registrable frames [%]")
+    axes[0].set_xlabel("registrable frames [%]")
     overall = summary["rows"]["all"]
     axes[0].set_title(f"suite {summary['suite']}: {100 * (overall['success_rate_registrable'] or 0):.1f} % "
                       f"of {overall['registrable_frames']} frames, {overall['wrong_verified']} wrong verified",
-                      fontsize=9)
+                      fontsize=9, pad=30)
 
     rel = summary.get("reliability")
     if rel:

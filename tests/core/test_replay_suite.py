@@ -183,6 +183,33 @@ def test_misses_tell_the_estimator_from_the_verdict_and_the_runtime_rules():
             "no_peer_cloud_to_verify 1)") in text
 
 
+def test_the_suite_plot_draws_each_bags_frames_by_outcome(tmp_path, monkeypatch):
+    """The stacked bars add up to each bag's registrable frames, wrong verified ones included."""
+    import matplotlib.axes
+
+    from sgreg_core.plots.replay import plot_suite
+
+    def f(correct, reason, verified=False):
+        return {**frame(correct, verified, True, 0.5), "reason": reason}
+
+    frames = [f(True, "ok", True), f(True, "low_confidence"), f(True, "awaiting_confirmation"),
+              f(False, "too_few_inliers"), f(False, "ok", True)]
+    suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
+    summary = summarize({"b": report(frames, 1, {})}, suite)
+    drawn = []
+    barh = matplotlib.axes.Axes.barh
+
+    def recording(self, y, width, *args, **kwargs):
+        if "left" in kwargs:
+            drawn.append((kwargs["label"], float(np.asarray(width)[0])))
+        return barh(self, y, width, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "barh", recording)
+    plot_suite(summary, tmp_path / "s.png")
+    assert (tmp_path / "s.png").stat().st_size > 10_000
+    assert [w for _, w in drawn] == [20.0] * 5 and drawn[-1][0] == "wrong, verified"
+
+
 def test_summary_adds_up_dense_requests_over_agents_and_bags(tmp_path):
     suite = load_suite(write(tmp_path, SUITE))
     one, two = suite.jobs[0].name, suite.jobs[-1].name
