@@ -24,7 +24,7 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 NAME = "bench-replay"
-HELP = "make and replay a suite of two-agent bags; success, wrong verified, time to success"
+HELP = "make and replay a suite of bags; success, wrong verified, time to success"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
