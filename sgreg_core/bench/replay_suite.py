@@ -359,7 +359,8 @@ def summarize(results: dict[str, dict], suite: Suite) -> dict:
         for walk in walks:
             groups[f"walk {walk}"] = [n for n, j in jobs.items() if j.walk == walk]
     return {"suite": suite.name,
-            "rows": {g: _row([results[n] for n in names]) for g, names in groups.items()},
+            "rows": {g: _row([results[n] for n in names]) for g, names in groups.items()
+                     if names or g == "all"},     # a run of held-out bags only (--only) has no others
             "bags": {n: {**_row([results[n]]), "room": j.room, "capture": j.capture,
                          "walk": j.walk, "seed": j.seed} for n, j in jobs.items()}}
 

@@ -156,6 +156,9 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
                                                           f"held_out: [{suite.jobs[-1].room}]")))
     rows = summarize(results, synth_held)["rows"]
     assert rows["the other scenes"]["registrable_frames"] == 2 and "rooms seen in training" not in rows
+    only_held = summarize({held: results[held]}, suite)["rows"]     # sgreg bench-replay --only
+    assert list(only_held)[:2] == ["all", "held-out rooms (scene0007)"]
+    assert "rooms seen in training" not in only_held
     assert s["rows"]["all"]["dense_requests"] is None      # no bag reports counters
     # of the two registrable misses, the wrong estimate verified is wrong_verified, not a miss
     assert s["rows"]["all"]["missed"] == {"wrong_estimate": {"unknown": 1}, "right_refused": {},
