@@ -90,6 +90,7 @@ def run(args) -> int:
         ["success rate over registrable frames", f"{score.success_rate_registrable:.1%} of {score.registrable_frames}"
          if score.success_rate_registrable is not None else "-"],
         ["verified estimates / wrong verified", f"{score.verified} / {score.wrong_verified}"],
+        ["registrable frames not verified", _missed(report["frames"])],
         ["first success", f"{score.first_success_s:.1f} s" if score.first_success_s is not None else "never"],
         ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],
         ["coarse latency median / p90", _lat(score.coarse_latency_ms)],
@@ -142,6 +143,15 @@ def run(args) -> int:
                               if merge["max_pose_error_m"] is not None else ""))
         print(f"plot: {args.png}, {merged_png}")
     return 0
+
+
+def _missed(frames: list[dict]) -> str:
+    """Why registrable frames were not verified (replay_suite.missed), in one table cell."""
+    from sgreg_core.bench.replay_suite import missed
+
+    n = {cause: sum(reasons.values()) for cause, reasons in missed(frames).items()}
+    return (f"{n['wrong_estimate']} wrong estimate, {n['right_refused']} right but refused by the "
+            f"verdict, {n['right_held']} right but held by the runtime's rules")
 
 
 def _lat(d: dict) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 from sgreg_cli.bag_types import typestore
+from sgreg_core.bench import replay_suite
 
 BAGS = Path(__file__).resolve().parents[2] / "bags"
 SGREG = [sys.executable, "-m", "sgreg_cli.main"]
@@ -32,6 +33,10 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
     assert (tmp_path / "r.png").stat().st_size > 10_000
     # the main job prints the estimate against the ground truth
     assert "last verified T_a^b" in stdout and "ground truth" in stdout
+    # and why the registrable frames it did not verify were missed
+    missed = {k: sum(v.values()) for k, v in replay_suite.missed(report["frames"]).items()}
+    assert (f"{missed['wrong_estimate']} wrong estimate, {missed['right_refused']} right but refused "
+            f"by the verdict, {missed['right_held']} right but held by the runtime's rules") in stdout
     # both agents' nodes were measured
     assert {"a/agent", "a/registration", "b/agent", "b/registration"} <= set(report["nodes"])
     # signed messages of the fleet all checked on the other side, results included
