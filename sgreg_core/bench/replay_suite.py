@@ -49,13 +49,12 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import typing
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-import typing
 
 from ..config import as_hinted, check_types, from_dict, to_dict
 from ..simulation.synth import SynthConfig
@@ -272,6 +271,9 @@ REQUEST_COUNTERS = {"sent": "requests", "retried": "request_retry", "gave_up": "
 # matches to try; no points of the peer to verify on)
 RUNTIME_RULES = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles",
                  "no_peer_cloud_to_verify", "too_few_matches")
+# what missed() calls each cause, in the suite's printout and its plot
+MISSED_LABELS = {"wrong_estimate": "wrong estimate", "right_refused": "right, refused by the verdict",
+                 "right_held": "right, held by the runtime's rules"}
 
 
 def missed(frames: list[dict]) -> dict:
@@ -404,9 +406,8 @@ def format_summary(summary: dict) -> str:
         def said(cause: str) -> str:
             n = sum(miss[cause].values())
             return f"{n}" + (f" ({', '.join(f'{r} {k}' for r, k in miss[cause].items())})" if n else "")
-        text += (f"\nregistrable frames not verified:\n  wrong estimate: {said('wrong_estimate')}\n"
-                 f"  right, refused by the verdict: {said('right_refused')}\n"
-                 f"  right, held by the runtime's rules: {said('right_held')}")
+        text += "\nregistrable frames not verified:" + "".join(
+            f"\n  {label}: {said(cause)}" for cause, label in MISSED_LABELS.items())
     return text
 
 

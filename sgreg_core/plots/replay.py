@@ -58,18 +58,20 @@ def plot_suite(summary: dict, out_path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(16, max(4.5, 0.17 * len(names) + 1.5)),
                              gridspec_kw={"width_ratios": [2.2, 1.3, 1.3]})
     y = np.arange(len(names))
+    from ..bench.replay_suite import MISSED_LABELS
+
     # shares of each bag's registrable frames, left to right: what trust cost is next to success
-    parts = [("verified, right", "tab:green"), ("right, held by the runtime's rules", "yellowgreen"),
-             ("right, refused by the verdict", "orange"), ("wrong estimate, not verified", "lightgray"),
+    causes = ("right_held", "right_refused", "wrong_estimate")
+    parts = [("verified, right", "tab:green"),
+             *zip((MISSED_LABELS[c] for c in causes), ("yellowgreen", "orange", "lightgray")),
              ("wrong, verified", "tab:red")]
     counts = np.zeros((len(names), len(parts)))
     for i, n in enumerate(names):
         b, miss = bags[n], bags[n].get("missed") or {}
         reg = b["registrable_frames"]
         ok = round((b["success_rate_registrable"] or 0.0) * reg)
-        held, refused, wrong_est = (sum(miss.get(k, {}).values())
-                                    for k in ("right_held", "right_refused", "wrong_estimate"))
-        counts[i] = ok, held, refused, wrong_est, max(reg - ok - held - refused - wrong_est, 0)
+        not_verified = [sum(miss.get(c, {}).values()) for c in causes]
+        counts[i] = ok, *not_verified, max(reg - ok - sum(not_verified), 0)
     shares = 100 * counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
     left = np.zeros(len(names))
     for k, (label, color) in enumerate(parts):
