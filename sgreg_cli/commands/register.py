@@ -3,14 +3,15 @@
 --set overrides a PipelineConfig entry (e.g. pose.footprint_rim=1; coarse_pose.* with --coarse).
 `sgreg register --pairs FILE [--json OUT]`: many pairs (one "SRC_DIR REF_DIR" per line), the
 model loaded once; --json then writes a list of results, and a pair with bad input (or one
-that fails in the pipeline) is an entry with an "error" instead of the end of the run; so
-is a single pair that fails in the pipeline (one line on stderr, exit 2).
+that fails in the pipeline) is an entry with an "error" instead of the end of the run; a
+single pair with bad input or that fails in the pipeline is written as such an "error" too
+(one line on stderr, exit 2), so no result of an earlier run is left behind.
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
 fitness, node pairs). Exit status: 0 registered, 1 not registered (the result is still
-printed and written), 2 bad input or a failure in the pipeline (one line on stderr; a failure
-is written to --json as an "error"). timing_ms covers the registration
+printed and written), 2 bad input or a failure in the pipeline (one line on stderr; either
+is written to --json as an "error"; a bad flag writes nothing). timing_ms covers the registration
 (graphs, encoding, matching, pose); loading the network and the text encoder is startup_ms.
 --png is checked before registering and drawn after --json is written, so that a picture that
 cannot be drawn loses no result.
@@ -114,9 +115,10 @@ def run(args: argparse.Namespace) -> int:
         try:
             maps = read_instance_map(src_dir), read_instance_map(ref_dir)
         except InstanceMapError as exc:
+            # written to --json like any other result, so no stale file of an earlier run stays
             if not args.pairs:
-                return _fail(str(exc))
-            results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc)))
+                _fail(str(exc))
+            results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc), say=bool(args.pairs)))
             codes.append(2)
             continue
         try:
@@ -163,9 +165,10 @@ def _where(exc: BaseException) -> str:
     return " -> ".join(dict.fromkeys(f"{Path(f.filename).name}:{f.lineno}" for f in at))
 
 
-def _pair_error(src_dir: str, ref_dir: str, what: str, message: str) -> dict:
-    """The --pairs entry of a pair that was not registered, said on stderr too."""
-    print(f"{src_dir} -> {ref_dir}: {what}: {message}", file=sys.stderr)
+def _pair_error(src_dir: str, ref_dir: str, what: str, message: str, say: bool = True) -> dict:
+    """The result of a pair that was not registered, said on stderr too (unless said already)."""
+    if say:
+        print(f"{src_dir} -> {ref_dir}: {what}: {message}", file=sys.stderr)
     return {"src": src_dir, "ref": ref_dir, "success": False, "error": message}
 
 

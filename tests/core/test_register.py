@@ -123,10 +123,13 @@ def test_bad_input_is_one_line_exit_2(data, tmp_path, capsys, problem):
     if problem == "malformed":
         bad.mkdir()
         (bad / "points.npy").write_bytes(b"not numpy")
-    code = main(["register", str(bad), str(root / "ref"), "--json", str(tmp_path / "o.json")])
+    out = tmp_path / "o.json"
+    out.write_text('{"success": true}\n')       # an earlier run's result must not stay
+    code = main(["register", str(bad), str(root / "ref"), "--json", str(out)])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("sgreg register: ") and "\n" not in err
-    assert not (tmp_path / "o.json").exists()
+    result = json.loads(out.read_text())
+    assert result["success"] is False and result["error"] in err and result["src"] == str(bad)
 
 
 def test_many_pairs_load_the_model_once(data, tmp_path, capsys):
