@@ -74,8 +74,8 @@ def from_dict(cls, data: Mapping | None):
             _check_range(cls, fields[key], value)
             try:
                 value = as_hinted(hint, value)
-            except OverflowError:
-                raise ValueError(f"{cls.__name__}.{key} is too large for a number, got {value!r}") from None
+            except ValueError as exc:
+                raise ValueError(f"{cls.__name__}.{key} {exc}") from None
         kwargs[key] = value
     return cls(**kwargs)
 
@@ -124,10 +124,14 @@ def as_hinted(hint, value):
     """A value that fits `hint` (float or tuple[...] fields; others are returned as they are),
     as the hint's type: a whole number given for a float is that float (YAML's `1000` and
     `1000.0` are one setting: one saved config, one digest), a list for a tuple that tuple, each
-    element as its own hint. OverflowError for a whole number too large for a float."""
+    element as its own hint. ValueError ("is too large for a number, ...") for a whole number
+    too large for a float."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:
+            raise ValueError(f"is too large for a number, got {value!r}") from None
     if origin is tuple and isinstance(value, (list, tuple)):
         if args and args[-1] is Ellipsis:
             return tuple(as_hinted(args[0], v) for v in value)

@@ -180,10 +180,13 @@ def build_spec(bag_spec: type, spec: dict):
     type (lists as tuples, as YAML and JSON give them; `1` for a float as 1.0); raises what
     bag_spec raises for a setting out of range."""
     hints = typing.get_type_hints(bag_spec)
-    try:
-        return bag_spec(**{k: as_hinted(hints[k], v) if k in hints else v for k, v in spec.items()})
-    except OverflowError as exc:
-        raise ValueError(f"a setting is too large for a number: {exc}") from None
+    values = {}
+    for key, value in spec.items():
+        try:
+            values[key] = as_hinted(hints[key], value) if key in hints else value
+        except ValueError as exc:
+            raise ValueError(f"{key} {exc}") from None
+    return bag_spec(**values)
 
 
 def _buildable(bag_spec: type, spec: dict, where: str) -> None:
