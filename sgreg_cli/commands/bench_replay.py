@@ -60,9 +60,9 @@ def _source_digest() -> str:
     return h.hexdigest()[:16]
 
 
-def _ensure_bag(job, log) -> None:
+def _ensure_bag(job, log) -> dict:
     """Make the job's bag unless one made from the same spec is there; replace one this suite
-    made with other settings, never anything else; check the ground truth of every bag."""
+    made with other settings, never anything else; the ground truth of every bag, checked."""
     import shutil
 
     from sgreg_core.bench.replay_suite import build_spec
@@ -73,15 +73,13 @@ def _ensure_bag(job, log) -> None:
     from .make_bag import BagSpec, BagSpecError, make_bag
 
     if job.spec is None:
-        ground_truth_of(job.path)
-        return
+        return ground_truth_of(job.path)
     spec = build_spec(BagSpec, job.spec)
     wanted = json.loads(json.dumps(asdict(spec)))
     if job.path.exists():
         made = _made_with(job.path)
         if made == wanted:
-            ground_truth_of(job.path)
-            return
+            return ground_truth_of(job.path)
         if made is not None:
             changed = sorted(k for k in made.keys() | wanted.keys() if made.get(k) != wanted.get(k))
             log(f"replacing {job.name}: made with other settings ({', '.join(changed)})")
@@ -98,6 +96,7 @@ def _ensure_bag(job, log) -> None:
     job.path.parent.mkdir(parents=True, exist_ok=True)
     log(f"making {job.name}")
     make_bag(spec, job.path)
+    return ground_truth_of(job.path)
 
 
 def _interrupted(path: Path) -> bool:
@@ -128,14 +127,12 @@ def _offline_config(overrides: list[str]):
     return from_dict(OfflineReplayConfig, apply_overrides(to_dict(OfflineReplayConfig()), overrides))
 
 
-def _replay(job, backend: str, args, model, out_dir: Path) -> dict:
+def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
+    """The report of one bag, scored against its checked ground truth gt (_ensure_bag)."""
     from sgreg_core.bench.merge_score import merge_report
     from sgreg_core.bench.replay_score import score_replay
     from sgreg_core.bench.replay_report import replay_report
 
-    from ..replay import ground_truth_of
-
-    gt = ground_truth_of(job.path)
     if backend == "offline":
         from ..bags import instance_maps_in_bag
 
@@ -205,9 +202,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"[bench-replay] {s}", flush=True)
 
     log(f"suite {suite.name}: {len(jobs)} bags, backend {args.backend}, output {out}")
+    truths = {}
     for i, job in enumerate(jobs):
         try:
-            _ensure_bag(job, lambda s: log(f"{i + 1}/{len(jobs)} {s}"))
+            truths[job.name] = _ensure_bag(job, lambda s: log(f"{i + 1}/{len(jobs)} {s}"))
         except (BagSpecError, InstanceMapError, FileNotFoundError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2
@@ -246,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         t0 = time.monotonic()
         try:
-            report = _replay(job, args.backend, args, model, out)
+            report = _replay(job, truths[job.name], args.backend, args, model, out)
         except (RuntimeError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2

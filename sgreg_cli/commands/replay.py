@@ -147,11 +147,10 @@ def run(args) -> int:
 
 def _missed(frames: list[dict]) -> str:
     """Why registrable frames were not verified (replay_suite.missed), in one table cell."""
-    from sgreg_core.bench.replay_suite import missed
+    from sgreg_core.bench.replay_suite import MISSED_LABELS, missed
 
     n = {cause: sum(reasons.values()) for cause, reasons in missed(frames).items()}
-    return (f"{n['wrong_estimate']} wrong estimate, {n['right_refused']} right but refused by the "
-            f"verdict, {n['right_held']} right but held by the runtime's rules")
+    return "; ".join(f"{label}: {n[cause]}" for cause, label in MISSED_LABELS.items())
 
 
 def _lat(d: dict) -> str:

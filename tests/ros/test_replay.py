@@ -35,8 +35,8 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
     assert "last verified T_a^b" in stdout and "ground truth" in stdout
     # and why the registrable frames it did not verify were missed
     missed = {k: sum(v.values()) for k, v in replay_suite.missed(report["frames"]).items()}
-    assert (f"{missed['wrong_estimate']} wrong estimate, {missed['right_refused']} right but refused "
-            f"by the verdict, {missed['right_held']} right but held by the runtime's rules") in stdout
+    assert (f"wrong estimate: {missed['wrong_estimate']}; right, refused by the verdict: "
+            f"{missed['right_refused']}; right, held by the runtime's rules: {missed['right_held']}") in stdout
     # both agents' nodes were measured
     assert {"a/agent", "a/registration", "b/agent", "b/registration"} <= set(report["nodes"])
     # signed messages of the fleet all checked on the other side, results included
