@@ -99,7 +99,8 @@ MAX_AHEAD_S = 3600.0
 def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) -> str | None:
     """The one map intake of both nodes of agent `agent_id`: decode an InstanceMap and hand it
     to take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None,
-    or the one-line reason the map was refused, counted through refuse(counter, why): bytes
+    what take says of a map too small to use yet (agent.NotYet: no refusal), or the one-line
+    reason the map was refused, counted through refuse(counter, why): bytes
     that do not decode are "malformed_message", fields that do not fit "bad_instance_map", and
     so is a map that names another agent or frame (a remapping slip: registered as the own
     map, another agent's map verifies the identity as the transform to that agent), has no

@@ -9,6 +9,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 
 from sgreg_core.net.model import SGRegModel, load_model
+from sgreg_core.runtime.agent import NotYet
 from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.clock import RunClock
 from sgreg_core.runtime.health import Health, HealthConfig
@@ -80,13 +81,16 @@ class SgregNode(Node):
             self.get_logger().error(refuse("internal_error", f"{what}: internal error {exc!r}; skipped"))
 
     def map_taken(self, why: str | None) -> None:
-        """After the own instance map was offered: log why it was refused, or note its time."""
-        if why:
-            self.refusal(why)
-        else:
+        """After the own instance map was offered: log why it was refused, or note its time (a
+        map too small to use yet, NotYet, is the front end at work: noted, and said at info)."""
+        if why is None or isinstance(why, NotYet):
             self.last_map_at = self.clock_s()
+        if isinstance(why, NotYet):
+            self.refusal(why, key="small map", level="info")
+        elif why:
+            self.refusal(why)
 
-    def refusal(self, why: str, key: str | None = None) -> None:
+    def refusal(self, why: str, key: str | None = None, level: str = "warning") -> None:
         """Log a refused input, at most once per LOG_PERIOD_S per kind (the first words, or
         `key`): a flood of bad messages costs counters, not a flood of log lines."""
         key = key or " ".join(why.split()[:3])
@@ -99,7 +103,11 @@ class SgregNode(Node):
             self._logged.clear()
         self._logged[key] = (now, 0)
         more = f" ({suppressed} more like it in the last {LOG_PERIOD_S:g} s)" if suppressed else ""
-        self.get_logger().warning(why + more)
+        # rclpy fixes one severity per call site: one line each
+        if level == "info":
+            self.get_logger().info(why + more)
+        else:
+            self.get_logger().warning(why + more)
 
     # ---- diagnostics ---------------------------------------------------------------------
     def counters(self) -> dict:

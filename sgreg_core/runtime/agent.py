@@ -1,7 +1,9 @@
 """An agent's own side: instance map -> scene graph -> node features, the coarse and dense
 messages made from them, and the answers to dense requests. Encoding happens once per map
 update, not per message. Both nodes of an agent take their maps through `take_map` and count
-every refusal in `counters` (one table per node, which the node publishes as diagnostics).
+every refusal in `counters` (one table per node, which the node publishes as diagnostics). A
+well-formed map too small to register (fewer than min_nodes nodes: a robot that has seen only
+the floor) is no refusal: it is counted as `small_map` and waited out (NotYet).
 """
 from __future__ import annotations
 
@@ -71,6 +73,16 @@ class AgentInputError(ValueError):
     """An instance map the agent refuses; the message says why in one line."""
 
 
+class SmallMapError(AgentInputError):
+    """A well-formed instance map whose graph has too few nodes to register yet."""
+
+
+class NotYet(str):
+    """What take_map says of a map that is fine but too small to use yet (the agent keeps what
+    it had): no refusal, so neither a warning nor a WARN in the diagnostics, and the front end
+    counts as heard from."""
+
+
 class AgentCore:
     def __init__(self, cfg: AgentConfig, model: SGRegModel):
         self.cfg = cfg
@@ -108,12 +120,16 @@ class AgentCore:
 
     def take_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> str | None:
         """A new instance map from the agent's own front end: None when it became the agent's
-        map, else the one-line reason it was refused (counted): the same sequence again, or a
-        map update_map refuses."""
+        map, NotYet (counted as small_map) when its graph has too few nodes to use yet, else the
+        one-line reason it was refused (counted): the same sequence again, or a map update_map
+        refuses."""
         if self.ready and map_sequence == self.map_sequence:
             return self.refuse("duplicate_map", f"instance map {map_sequence} received twice; ignored")
         try:
             self.update_map(imap, map_sequence, stamp_ns)
+        except SmallMapError as exc:
+            self.counters["small_map"] += 1
+            return NotYet(f"{exc}: not registered until it holds more")
         except AgentInputError as exc:
             return self.refuse("bad_instance_map", f"instance map {map_sequence} refused: {exc}")
         return None
@@ -138,7 +154,7 @@ class AgentCore:
         graph.level, graph.map_points = level, imap.points
         timings["graph"] = 1e3 * (time.perf_counter() - t0)
         if graph.num_nodes < self.cfg.min_nodes:
-            raise AgentInputError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
+            raise SmallMapError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
                                   f"(min_nodes={self.cfg.min_nodes})")
         self.set_graph(graph, map_sequence, stamp_ns, timings)
         return graph

@@ -9,7 +9,7 @@ from sgreg_core.geometry import yaw_transform
 from sgreg_core.metrics import rre, rte
 from sgreg_core.net.model import load_model
 from sgreg_core.net.testing import moved_graph, toy_graph
-from sgreg_core.runtime.agent import AgentConfig, AgentCore
+from sgreg_core.runtime.agent import AgentConfig, AgentCore, NotYet
 from sgreg_core.runtime.peers import Hypothesis, Peers, PeersConfig
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
 from sgreg_core.types import InstanceMap
@@ -785,6 +785,23 @@ def test_one_map_intake_for_both_nodes_counts_every_refusal(model):
     assert "refused" in agent.take_map(empty, 2, 2_000_000_000)
     assert agent.counters["duplicate_map"] == 1 and agent.counters["bad_instance_map"] == 1
     assert agent.map_sequence == 1                           # the refused map changed nothing
+
+
+def test_a_map_too_small_to_register_is_waited_out_not_refused(model):
+    """A front end's first maps hold the floor and an object or two: fewer nodes than min_nodes.
+    Such a map is no bad input (no refusal, so no warning and no WARN), it changes nothing the
+    agent holds, and the first map large enough is taken."""
+    scene = generate_scene(1, SynthConfig(rooms=1))
+    first = scene.instance == scene.instance[scene.instance > 0][0]
+    small = InstanceMap(points=scene.points[first], instance=scene.instance[first], labels=scene.labels)
+    agent = AgentCore(AgentConfig(name="a"), model)
+    peers = Peers(PeersConfig(), agent, model, log=lambda s: None)
+    why = peers.take_own_map(small, 1, 0)
+    assert isinstance(why, NotYet) and "min_nodes=3" in why and not agent.ready
+    assert agent.counters["small_map"] == 1 and agent.refused == 0
+    assert peers.take_own_map(scene, 2, 1_000_000_000) is None and agent.ready
+    assert isinstance(agent.take_map(small, 3, 2_000_000_000), NotYet)
+    assert agent.map_sequence == 2 and agent.counters["small_map"] == 2 and agent.refused == 0
 
 
 def test_no_dense_request_for_graphs_already_exchanged(model, graphs):
