@@ -127,6 +127,9 @@ def as_hinted(hint, value):
     element as its own hint. ValueError ("is too large for a number, ...") for a whole number
     too large for a float."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):    # X | None: as the alternative it fits
+        fits = [a for a in args if _fits(a, value, finite=False)]
+        return as_hinted(fits[0], value) if fits else value
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
         try:
             return float(value)

@@ -120,5 +120,7 @@ class AgentNode(SgregNode):
 
     def summary(self) -> str:
         if self.core is None or not self.core.ready:
-            return "waiting for the first instance map"
+            small = self.core.counters["small_map"] if self.core else 0
+            return (f"waiting for a map of {self.core.cfg.min_nodes} nodes or more ({small} too "
+                    "small so far)") if small else "waiting for the first instance map"
         return f"map {self.core.map_sequence}: {self.core.graph.num_nodes} nodes"

@@ -83,16 +83,18 @@ class SgregNode(Node):
     def map_taken(self, why: str | None) -> None:
         """After the own instance map was offered: log why it was refused, or note its time (a
         map too small to use yet, NotYet, is the front end at work: noted, and said at info)."""
-        if why is None or isinstance(why, NotYet):
-            self.last_map_at = self.clock_s()
         if isinstance(why, NotYet):
-            self.refusal(why, key="small map", level="info")
+            self.last_map_at = self.clock_s()
+            self.refusal(why, key="small map", quiet=True)
         elif why:
             self.refusal(why)
+        else:
+            self.last_map_at = self.clock_s()
 
-    def refusal(self, why: str, key: str | None = None, level: str = "warning") -> None:
-        """Log a refused input, at most once per LOG_PERIOD_S per kind (the first words, or
-        `key`): a flood of bad messages costs counters, not a flood of log lines."""
+    def refusal(self, why: str, key: str | None = None, quiet: bool = False) -> None:
+        """Log a refused input (a warning; quiet: at info, for an input only waited out), at
+        most once per LOG_PERIOD_S per kind (the first words, or `key`): a flood of bad
+        messages costs counters, not a flood of log lines."""
         key = key or " ".join(why.split()[:3])
         now = time.monotonic()
         last, suppressed = self._logged.get(key, (-1e9, 0))
@@ -104,7 +106,7 @@ class SgregNode(Node):
         self._logged[key] = (now, 0)
         more = f" ({suppressed} more like it in the last {LOG_PERIOD_S:g} s)" if suppressed else ""
         # rclpy fixes one severity per call site: one line each
-        if level == "info":
+        if quiet:
             self.get_logger().info(why + more)
         else:
             self.get_logger().warning(why + more)

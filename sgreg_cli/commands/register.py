@@ -5,13 +5,14 @@
 model loaded once; --json then writes a list of results, and a pair with bad input (or one
 that fails in the pipeline) is an entry with an "error" instead of the end of the run; a
 single pair with bad input or that fails in the pipeline is written as such an "error" too
-(one line on stderr, exit 2), so no result of an earlier run is left behind.
+(one line on stderr, exit 2): once the maps are read, --json gets this run's result or error.
 
 Prints the 4x4 transform mapping SRC points into REF's frame and a one-line verdict; --json
 writes the result of docs/ARCHITECTURE.md ("Contracts") (+ reason, weights_id, mode, correspondences,
 fitness, node pairs). Exit status: 0 registered, 1 not registered (the result is still
 printed and written), 2 bad input or a failure in the pipeline (one line on stderr; either
-is written to --json as an "error"; a bad flag writes nothing). timing_ms covers the registration
+is written to --json as an "error"; what is refused before the maps are read, a bad flag,
+pairs file or weights, writes nothing, so an earlier file stays). timing_ms covers the registration
 (graphs, encoding, matching, pose); loading the network and the text encoder is startup_ms.
 --png is checked before registering and drawn after --json is written, so that a picture that
 cannot be drawn loses no result.
@@ -116,9 +117,11 @@ def run(args: argparse.Namespace) -> int:
             maps = read_instance_map(src_dir), read_instance_map(ref_dir)
         except InstanceMapError as exc:
             # written to --json like any other result, so no stale file of an earlier run stays
-            if not args.pairs:
+            if args.pairs:
+                results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc)))
+            else:
                 _fail(str(exc))
-            results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc), say=bool(args.pairs)))
+                results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc), say=False))
             codes.append(2)
             continue
         try:

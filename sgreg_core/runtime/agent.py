@@ -155,7 +155,7 @@ class AgentCore:
         timings["graph"] = 1e3 * (time.perf_counter() - t0)
         if graph.num_nodes < self.cfg.min_nodes:
             raise SmallMapError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
-                                  f"(min_nodes={self.cfg.min_nodes})")
+                                f"(min_nodes={self.cfg.min_nodes})")
         self.set_graph(graph, map_sequence, stamp_ns, timings)
         return graph
 

@@ -30,8 +30,9 @@ class Health:
 
     def status(self, now: float, refused: int, last_map_at: float | None,
                problem: str | None = None) -> tuple[int, str]:
-        """(level, one-line message). refused: inputs refused so far; last_map_at: when the last
-        instance map was taken (None: never); problem: why the node cannot work at all."""
+        """(level, one-line message). refused: inputs refused so far; last_map_at: when the
+        front end was last heard from, a map taken or one too small to use yet (None: never);
+        problem: why the node cannot work at all."""
         new_refusals, self._refused = refused - self._refused, refused
         if problem:
             return ERROR, problem

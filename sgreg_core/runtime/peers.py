@@ -380,7 +380,8 @@ class Peers:
     def take_own_map(self, imap, map_sequence: int, stamp_ns: int) -> str | None:
         """The agent's own new instance map (AgentCore.take_map), and its reference cloud
         (voxels, KD-tree, normals, footprint) built now, once per map update, so that no
-        estimate waits for it. None when taken, else the one-line reason it was refused."""
+        estimate waits for it. None when taken, agent.NotYet when too small to use yet, else
+        the one-line reason it was refused."""
         why = self.agent.take_map(imap, map_sequence, stamp_ns)
         if why is None:
             self.agent.reference_cloud(self.cfg.pipeline.pose)

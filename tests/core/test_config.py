@@ -54,3 +54,19 @@ def test_values_of_the_right_type_are_taken():
 def test_settings_that_would_divide_by_zero_or_score_nothing_are_refused(make):
     with pytest.raises(ValueError):
         make()
+
+
+def test_whole_numbers_become_floats_also_where_a_setting_may_be_none():
+    """YAML's `[1, 2]` for an optional pair of floats is that pair of floats (one setting, one
+    saved config); a number too large for a float is refused by name, in configs and suites."""
+    from sgreg_cli.commands.make_bag import BagSpec
+    from sgreg_core.bench.replay_suite import build_spec
+    from sgreg_core.simulation.observe import TrajectoryConfig
+
+    start = from_dict(TrajectoryConfig, {"start": [1, 2]}).start
+    assert start == (1.0, 2.0) and all(type(v) is float for v in start)
+    assert from_dict(TrajectoryConfig, {"start": None}).start is None
+    spec = build_spec(BagSpec, {"scan": "s", "start_a": [1, 0]})
+    assert all(type(v) is float for v in spec.start_a)
+    with pytest.raises(ValueError, match="start_a is too large for a number"):
+        build_spec(BagSpec, {"scan": "s", "start_a": [10 ** 400, 0]})

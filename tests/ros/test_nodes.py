@@ -121,7 +121,8 @@ def test_bad_input_is_counted_and_the_nodes_carry_on(two):
     inject()
     reg_a, agent_a = "/a/registration", "/a/agent"
     # the map of one object is no bad input: a front end's first maps are that small
-    wanted = [(agent_a, "bad_instance_map", 6), (agent_a, "small_map", 1), (agent_a, "malformed_message", 1),
+    wanted = [(agent_a, "bad_instance_map", 6), (agent_a, "small_map", 1), (reg_a, "small_map", 1),
+              (agent_a, "malformed_message", 1),
               (reg_a, "malformed_message", 1), (reg_a, "rejected_weights", 1),
               (reg_a, "bad_feature_size", 1), (reg_a, "duplicate_sequence", 1),
               (reg_a, "out_of_order_sequence", 1), (reg_a, "oversized_message", 1),

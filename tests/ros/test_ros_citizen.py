@@ -17,6 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sgreg_msgs.msg import CoarseGraph, DenseRequest, RegistrationResult
 
 from sgreg_cli.bags import play_bag
+from sgreg_core.types import InstanceMap
 from sgreg_ros import qos
 from sgreg_ros.convert import instance_map_to_msg
 
@@ -62,11 +63,25 @@ def test_nodes_are_named_as_run_and_report_on_diagnostics(agent_a):
                                     for n in ("/a/agent", "/a/registration")), 30), w.levels
     assert {hw for n in ("/a/agent", "/a/registration") for _, hw, _ in w.levels[n]} == {"a"}
     assert "no instance map" in w.levels["/a/agent"][-1][2]
+    # maps of one object, too small to register, once a second: the front end is heard from
+    # and nothing was refused, so OK past map_timeout_s, and the agent says what it waits for
+    nodes = ("/a/agent", "/a/registration")
+    first = imap.instance == imap.instance[imap.instance > 0][0]
+    small = InstanceMap(points=imap.points[first], instance=imap.instance[first], labels=imap.labels)
+    w.map_pubs["a"].publish(instance_map_to_msg(small, "a", 1, 1))
+    assert w.spin_until(lambda: all(w.levels.get(n, [(None,)])[-1][0] == OK for n in nodes), 15), w.levels
+    w.levels.clear()
+    for seq in range(2, 8):                          # 6 s, twice map_timeout_s
+        w.map_pubs["a"].publish(instance_map_to_msg(small, "a", seq, seq))
+        w.spin_until(lambda: False, 1.0)
+    assert {lv for n in nodes for lv, _, _ in w.levels.get(n, [])} == {OK}, w.levels
+    assert "too small so far" in w.levels["/a/agent"][-1][2]
+    assert w.counter("/a/agent", "small_map") >= 6 and w.counter("/a/registration", "small_map") >= 6
     # a map: OK; then a map the nodes refuse: WARN for that period
     w.levels.clear()
-    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 1, 1))
+    w.map_pubs["a"].publish(instance_map_to_msg(imap, "a", 10, 10))
     assert w.spin_until(lambda: w.levels.get("/a/agent", [(None,)])[-1][0] == OK, 15), w.levels
-    broken = instance_map_to_msg(imap, "a", 2, 2)
+    broken = instance_map_to_msg(imap, "a", 11, 11)
     broken.labels = broken.labels[:1]            # labels no longer match the instance ids
     w.levels.clear()
     w.map_pubs["a"].publish(broken)
