@@ -80,6 +80,10 @@ def plot_suite(summary: dict, out_path) -> None:
     wrong = np.array([bags[n]["wrong_verified"] for n in names])
     for i in np.flatnonzero(wrong):
         axes[0].text(2, y[i], f"{wrong[i]} wrong verified", va="center", fontsize=7, color="white")
+    # a bag whose maps never share 3 objects has nothing to register: no bar, and no "never"
+    registrable = np.array([bags[n]["registrable_frames"] or 0 for n in names])
+    for i in np.flatnonzero(registrable == 0):
+        axes[0].text(1, y[i], "no registrable frame", va="center", fontsize=6)
     axes[0].legend(loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3, fontsize=7, frameon=False)
     axes[0].set_yticks(y, names, fontsize=6)
     axes[0].invert_yaxis()
@@ -108,7 +112,7 @@ def plot_suite(summary: dict, out_path) -> None:
     t = np.array([np.nan if bags[n]["median_time_to_success_s"] is None
                   else bags[n]["median_time_to_success_s"] for n in names])
     axes[2].barh(y, np.nan_to_num(t), color="tab:purple")
-    for i in np.flatnonzero(~np.isfinite(t)):
+    for i in np.flatnonzero(~np.isfinite(t) & (registrable > 0)):
         axes[2].text(0.1, y[i], "never", va="center", fontsize=6)
     axes[2].set_yticks(y, [])
     axes[2].invert_yaxis()

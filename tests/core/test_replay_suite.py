@@ -213,6 +213,31 @@ def test_the_suite_plot_draws_each_bags_frames_by_outcome(tmp_path, monkeypatch)
     assert [w for _, w in drawn] == [20.0] * 5 and drawn[-1][0] == "wrong, verified"
 
 
+def test_the_suite_plot_tells_a_bag_with_nothing_to_register_from_one_never_registered(tmp_path,
+                                                                                      monkeypatch):
+    import matplotlib.axes
+
+    from sgreg_core.plots.replay import plot_suite
+
+    never = [frame(False, False, True, 0.1)]
+    nothing = [frame(False, False, False, 0.1)]
+    suite = Suite("t", Path("t.yaml"), [BagJob("never", Path("n")), BagJob("nothing", Path("m"))])
+    summary = summarize({"never": report(never, 0, {"a->b": {"first_registrable_s": 1.0, "first_success_s":
+                                                                None, "time_to_success_s": None}}),
+                         "nothing": report(nothing, 0, {})}, suite)
+    said = []
+    text = matplotlib.axes.Axes.text
+
+    def recording(self, x, y, s, *args, **kwargs):
+        said.append((s, round(float(y))))
+        return text(self, x, y, s, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "text", recording)
+    plot_suite(summary, tmp_path / "s.png")
+    assert ("never", 0) in said and ("no registrable frame", 1) in said
+    assert ("never", 1) not in said and ("no registrable frame", 0) not in said
+
+
 def test_summary_adds_up_dense_requests_over_agents_and_bags(tmp_path):
     suite = load_suite(write(tmp_path, SUITE))
     one, two = suite.jobs[0].name, suite.jobs[-1].name
