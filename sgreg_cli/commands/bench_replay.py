@@ -29,11 +29,13 @@ HELP = "make and replay a suite of bags; success, wrong verified, time to succes
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("suite", help="suite file (YAML), e.g. config/suites/real.yaml")
-    p.add_argument("--out", help="output directory (default results/bench_replay_<suite>[_offline])")
+    p.add_argument("--out", help="output directory (default results/bench_replay_<suite>"
+                   "[_seeds<N-M>][_offline])")
     p.add_argument("--backend", choices=["ros", "offline"], default="ros")
     p.add_argument("--only", nargs="+", metavar="TEXT", help="only bags whose name contains one of these")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
-    p.add_argument("--params-file", help="ROS parameter YAML of the nodes (default config/sgreg.yaml)")
+    p.add_argument("--params-file", help="ros backend: ROS parameter YAML of the nodes (default "
+                   "config/sgreg.yaml; a profile of config/profiles)")
     p.add_argument("--seeds", nargs="+", type=int, metavar="N",
                    help="walk seeds instead of the suite's: new live cases of the same rooms (the "
                    "bags the suite takes as they are are left out), e.g. to check a change on "
@@ -174,6 +176,12 @@ def run(args: argparse.Namespace) -> int:
     if args.overrides and args.backend != "offline":
         print("sgreg bench-replay: --set needs --backend offline (nodes read config/sgreg.yaml; "
               "use --params-file)", file=sys.stderr)
+        return 2
+    if args.params_file and args.backend == "offline":
+        # the offline cores take no node parameters: replaying defaults under a profile's name
+        # would report the defaults as the profile's figures
+        print("sgreg bench-replay: --params-file needs --backend ros (offline, override settings "
+              "with --set; each profile in config/profiles names its --set equivalent)", file=sys.stderr)
         return 2
     try:
         offline_cfg = to_dict(_offline_config(args.overrides))

@@ -134,6 +134,8 @@ def test_bad_suite_values_and_run_inputs_are_refused_in_one_line(tmp_path):
         ("scans: [{synth: {roomz: 2}}]\n", [], "synth: unknown keys ['roomz']"),
         (f"bags: [{bad_gt}]\n", [], "bag bad_gt: "),
         (shipped, ["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file"),
+        (shipped, ["--backend", "offline", "--params-file", "config/profiles/distinct_rooms.yaml"],
+         "--params-file needs --backend ros"),
         (shipped, ["--weights", str(tmp_path / "none.safetensors")], "cannot load weights"),
         (shipped, ["--out", str(tmp_path / "a_file" / "out")], "--out: cannot create folder"),
     ]:
