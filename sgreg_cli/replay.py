@@ -144,8 +144,28 @@ class _Sampler:
                        "peak_rss_mb": round(self.peak_rss[name] / 2**20, 1)} for name in self.procs}
 
 
+def _check_before_start(cfg: ReplayConfig, names: list[str]) -> None:
+    """ValueError, in one line, for what would otherwise fail only once every node is up."""
+    if not 0 < cfg.rate < float("inf"):     # NaN too
+        raise ValueError(f"--rate must be a positive number, got {cfg.rate}")
+    if cfg.restart is not None:
+        agent, at = cfg.restart
+        if agent not in names:
+            raise ValueError(f"--restart: the bag has no agent {agent!r} (its agents: {', '.join(names)})")
+        if not 0 <= at < float("inf"):
+            raise ValueError(f"--restart: the time must be >= 0 s, got {at}")
+    if cfg.params_file:
+        try:
+            Path(cfg.params_file).read_bytes()
+        except OSError as exc:
+            raise ValueError(f"cannot read --params-file {cfg.params_file}: {exc.strerror or exc}") from None
+
+
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
+    """ValueError before any node starts when cfg does not suit the bag (rate, restart,
+    params file)."""
     names = agents_in_bag(bag)
+    _check_before_start(cfg, names)
     # a bag's ground truth (none: a recorded bag) is checked before any node starts
     origin = (ground_truth_of(bag, required=False) or {}).get("t_origin", 0.0)
     overrides = dict(cfg.overrides)

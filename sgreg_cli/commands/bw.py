@@ -11,7 +11,8 @@ HELP = "per-topic bandwidth of live topics or of a bag"
 def add_arguments(p):
     p.add_argument("topics", nargs="*", help="topics to watch (default: every /*/sgreg/* topic)")
     p.add_argument("--bag", help="report a rosbag2 directory instead of live topics")
-    p.add_argument("--window", type=float, default=10.0, help="live: averaging window in seconds")
+    p.add_argument("--window", type=float, default=10.0, help="live: averaging window in seconds (msgs "
+                   "and mean over the window; total since the start; default 10)")
     p.add_argument("--duration", type=float, default=0.0, help="live: stop after this many seconds (0: Ctrl-C)")
 
 
@@ -26,15 +27,23 @@ def _bag_report(bag: str, topics: list[str] | None) -> str:
     try:
         for conn, t_ns, raw in read_messages(reader, select_connections(reader, topics, bag), bag):
             meter.add(conn.topic, t_ns * 1e-9, len(raw))
-        span = (reader.end_time - reader.start_time) * 1e-9
+        # a bag with no message has no time span (rosbags gives placeholders)
+        span = (reader.end_time - reader.start_time) * 1e-9 if reader.message_count else 0.0
     finally:
         reader.close()
-    return f"bag {bag}: {span:.1f} s\n" + format_table(HEADER, [r.as_row() for r in meter.report(span=span)])
+    rows = meter.report(span=span)
+    return f"bag {bag}: {span:.1f} s\n" + (format_table(HEADER, [r.as_row() for r in rows]) if rows
+                                           else "(no messages)")
 
 
 def run(args) -> int:
     from sgreg_core.bench.bandwidth import HEADER, BandwidthMeter, format_table
 
+    # NaN compares False: refused too
+    if not args.bag and not (args.window > 0 and args.duration >= 0 and args.duration < float("inf")):
+        print(f"sgreg bw: --window must be > 0 s and --duration >= 0 s (0: until Ctrl-C), got "
+              f"{args.window} and {args.duration}", file=sys.stderr)
+        return 2
     if args.bag:
         from ..bags import BagError
 

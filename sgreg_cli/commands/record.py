@@ -52,6 +52,6 @@ def run(args) -> int:
         recorder.close()
         node.destroy_node()
         rclpy.try_shutdown()
-    print(f"recorded {sum(recorder.counts.values())} messages into {args.out}: "
-          + ", ".join(f"{t}: {n}" for t, n in sorted(recorder.counts.items())))
+    counts = ", ".join(f"{t}: {n}" for t, n in sorted(recorder.counts.items()) if n)
+    print(f"recorded {sum(recorder.counts.values())} messages into {args.out}" + (f": {counts}" if counts else ""))
     return 0

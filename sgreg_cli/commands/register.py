@@ -102,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
             figure_path(args.png)
     except (OSError, ValueError) as exc:
         return _fail(f"--png: {exc}")
-    torch.set_num_threads(max(1, args.threads))
+    if args.threads < 1:
+        return _fail(f"--threads must be >= 1, got {args.threads}")
+    torch.set_num_threads(args.threads)
     t0 = time.perf_counter()
     try:
         model = load_model(args.weights)

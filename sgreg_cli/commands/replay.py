@@ -66,7 +66,7 @@ def run(args) -> int:
                        log_dir=Path(args.log_dir) if args.log_dir else out_json.parent / (out_json.stem + "_logs"))
     try:
         run_ = run_replay(args.bag, cfg, log=lambda s: print(f"[replay] {s}", flush=True))
-    except (BagError, RuntimeError) as exc:
+    except (BagError, RuntimeError, ValueError) as exc:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))

@@ -37,6 +37,14 @@ def run(args: argparse.Namespace) -> int:
     from sgreg_core.maps.scene_graph import build_scene_graph
     from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
+    from pathlib import Path
+
+    out = Path(args.out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        # writing over another scene would leave its files (graph.png) beside the new maps
+        print(f"sgreg synth: {out} exists and is not an empty folder; choose a new directory",
+              file=sys.stderr)
+        return 2
     try:
         noise = NoiseConfig.preset(args.noise)
         cfg = SynthConfig(kind=args.kind, rooms=args.rooms, run=args.run, noise=noise)

@@ -114,8 +114,12 @@ def _scan(path: str) -> InstanceMap:
 
 
 def _room(scan: str) -> str:
-    """'scannet-picwoon_scene0005_01' -> 'scene0005'."""
-    return scan.rsplit("_", 2)[-2]
+    """The room of a scan folder: 'scannet-picwoon_scene0005_01' -> 'scene0005', 'scene0005_01'
+    -> 'scene0005'; a name without a capture number is its own room ('myroom' -> 'myroom')."""
+    parts = scan.rsplit("_", 2)
+    if not parts[-1].isdigit() or len(parts) == 1:
+        return scan
+    return parts[-2]
 
 
 def _scans(cfg: CaseConfig) -> list[str]:

@@ -40,6 +40,19 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv):
     assert err.count("\n") == 0 and err.startswith("sgreg ") and "Traceback" not in err
 
 
+def test_synth_writes_into_no_folder_that_holds_anything(tmp_path, capsys):
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "graph.png").write_bytes(b"an earlier scene's picture")
+    (tmp_path / "a_file").write_text("x")
+    for target in ("old", "a_file"):
+        assert main(["synth", str(tmp_path / target)]) == 2
+        err = capsys.readouterr().err
+        assert "is not an empty folder" in err and err.count("\n") == 1
+    assert (tmp_path / "old" / "graph.png").read_bytes() == b"an earlier scene's picture"
+    (tmp_path / "empty").mkdir()
+    assert main(["synth", str(tmp_path / "empty")]) == 0
+
+
 def test_the_command_table_comes_from_the_command_modules(capsys, monkeypatch):
     from sgreg_cli import commands
 

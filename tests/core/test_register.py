@@ -114,6 +114,10 @@ def test_set_overrides_the_pipeline_config(data, capsys):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad
+    for threads in ("0", "-3"):
+        code = main(["register", str(root / "src"), str(root / "ref"), "--threads", threads])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err == f"sgreg register: --threads must be >= 1, got {threads}", err
 
 
 @pytest.mark.parametrize("problem", ["missing", "malformed"])
@@ -235,10 +239,11 @@ def test_tiny_graphs_are_refused_without_matching():
 def test_bench_register_schema(tmp_path, capsys):
     scans = tmp_path / "scans"
     write_instance_map(generate_scene(5, SynthConfig(density=200.0)), scans / "toy_scene0009_00")
+    # any folder name: one without a capture number is a room of its own
     write_instance_map(generate_scene(6, SynthConfig(kind="office", density=200.0)),
-                       scans / "toy_scene0008_00")
+                       scans / "myoffice")
     out = tmp_path / "bench"
-    code = main(["bench-register", "--scans", str(scans), "--scan-prefix", "toy_",
+    code = main(["bench-register", "--scans", str(scans), "--scan-prefix", "",
                  "--rooms", "scene0009", "--held-out-rooms", "scene0009", "--rescan-gt", "",
                  "--n", "2", "--methods", "sgreg_dense", "sgreg_coarse", "kiss_matcher",
                  "--out", str(out), "--no-progress"])

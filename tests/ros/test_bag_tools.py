@@ -140,6 +140,17 @@ def test_bw_of_a_bag(tmp_path):
     assert f"{total_kb:.2f} kB" in line
 
 
+def test_bw_of_a_bag_without_messages_and_bad_live_options(tmp_path):
+    empty = tmp_path / "empty"
+    write_bag(empty, n=0)
+    out = subprocess.run(SGREG + ["bw", "--bag", str(empty)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.splitlines() == [f"bag {empty}: 0.0 s", "(no messages)"], out
+    for bad in (["--window", "0"], ["--duration", "-1"], ["--duration", "nan"]):
+        out = subprocess.run(SGREG + ["bw", *bad], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2 and out.stderr.startswith("sgreg bw: --window must be") \
+            and out.stderr.count("\n") == 1, (bad, out.stderr)
+
+
 def test_play_refuses_a_directory_that_is_not_a_bag(tmp_path):
     out = subprocess.run(SGREG + ["play", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2

@@ -171,3 +171,12 @@ def test_a_ground_truth_that_cannot_be_scored_is_refused_before_any_node_starts(
     (tmp_path / "a_file").write_text("not a folder")
     assert main(["replay", str(BAGS / "apartment_opposite"), "--json", str(tmp_path / "a_file/r.json")]) == 2
     assert "cannot create folder" in capsys.readouterr().err
+    # what the nodes or the player would refuse only once every node is up
+    for extra, words in ((["--restart", "z@5"], "the bag has no agent 'z' (its agents: a, b)"),
+                         (["--restart", "b@-1"], "the time must be >= 0 s"),
+                         (["--rate", "0"], "--rate must be a positive number"),
+                         (["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file")):
+        argv = ["replay", str(BAGS / "apartment_opposite"), "--json", str(tmp_path / "r.json"), *extra]
+        assert main(argv) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith("sgreg replay: ") and words in err and err.count("\n") == 1, err
