@@ -9,6 +9,7 @@ import argparse
 import collections
 import sys
 import time
+from pathlib import Path
 
 NAME = "synth"
 HELP = "generate a synthetic indoor scene as an instance map directory"
@@ -36,8 +37,6 @@ def run(args: argparse.Namespace) -> int:
     from sgreg_core.simulation.noise import NoiseConfig
     from sgreg_core.maps.scene_graph import build_scene_graph
     from sgreg_core.simulation.synth import SynthConfig, generate_scene
-
-    from pathlib import Path
 
     out = Path(args.out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):

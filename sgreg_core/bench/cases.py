@@ -117,7 +117,7 @@ def _room(scan: str) -> str:
     """The room of a scan folder: 'scannet-picwoon_scene0005_01' -> 'scene0005', 'scene0005_01'
     -> 'scene0005'; a name without a capture number is its own room ('myroom' -> 'myroom')."""
     parts = scan.rsplit("_", 2)
-    if not parts[-1].isdigit() or len(parts) == 1:
+    if len(parts) == 1 or not parts[-1].isdigit():
         return scan
     return parts[-2]
 
