@@ -119,11 +119,9 @@ def run(args: argparse.Namespace) -> int:
             maps = read_instance_map(src_dir), read_instance_map(ref_dir)
         except InstanceMapError as exc:
             # written to --json like any other result, so no stale file of an earlier run stays
-            if args.pairs:
-                results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc)))
-            else:
+            if not args.pairs:
                 _fail(str(exc))
-                results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc), say=False))
+            results.append(_pair_error(src_dir, ref_dir, "bad input", str(exc), say=bool(args.pairs)))
             codes.append(2)
             continue
         try:
