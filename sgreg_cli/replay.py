@@ -36,7 +36,7 @@ CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
 class ReplayConfig:
     """rate: playback speed. tail_s: time to keep listening after the bag ends (a dense
     exchange may still be in flight; the agents' traffic in the last tail_s - settle_s of it is
-    what a static map costs the link). ready_timeout_s: how long nodes may take to start.
+    what a static map costs the link, unmeasured when tail_s <= settle_s). ready_timeout_s: how long nodes may take to start.
     overrides: ROS parameters given to every node (e.g. weights_path).
     restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
         and start them again at once: a robot whose software crashes mid-mission.
@@ -148,6 +148,8 @@ def _check_before_start(cfg: ReplayConfig, names: list[str]) -> None:
     """ValueError, in one line, for what would otherwise fail only once every node is up."""
     if not 0 < cfg.rate < float("inf"):     # NaN too
         raise ValueError(f"--rate must be a positive number, got {cfg.rate}")
+    if not 0 <= cfg.tail_s < float("inf"):
+        raise ValueError(f"--tail must be >= 0 s, got {cfg.tail_s}")
     if cfg.restart is not None:
         agent, at = cfg.restart
         if agent not in names:
@@ -296,6 +298,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                 fleet.look(node, names)
                 last_sample = time.monotonic()
             if end_at is None and not thread.is_alive():
+                if "error" in play_result:   # nothing past the damage will come: stop now
+                    break
                 end_at = time.monotonic() + cfg.tail_s
                 bag_end = end_at - cfg.tail_s - t0
         duration = time.monotonic() - t0

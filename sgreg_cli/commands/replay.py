@@ -17,7 +17,11 @@ def add_arguments(p):
     p.add_argument("--json", required=True, help="write the report here")
     p.add_argument("--png", help="plot success, RTE and bandwidth over time (and the merged map "
                                  "beside it, *_merged.png)")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed (default 1)")
+    p.add_argument("--tail", type=float, metavar="SECONDS",
+                   help="keep the nodes running this long after the bag ends (default: long enough "
+                        "to measure the link's traffic once the maps are static; a short tail "
+                        "leaves that unmeasured)")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML for the nodes (default: config/sgreg.yaml)")
     p.add_argument("--log-dir", help="node logs (default: next to the JSON)")
@@ -64,6 +68,8 @@ def run(args) -> int:
     cfg = ReplayConfig(rate=args.rate, restart=restart, params_file=args.params_file,
                        overrides={"weights_path": args.weights} if args.weights else {},
                        log_dir=Path(args.log_dir) if args.log_dir else out_json.parent / (out_json.stem + "_logs"))
+    if args.tail is not None:
+        cfg.tail_s = args.tail
     try:
         run_ = run_replay(args.bag, cfg, log=lambda s: print(f"[replay] {s}", flush=True))
     except (BagError, RuntimeError, ValueError) as exc:
@@ -74,7 +80,7 @@ def run(args) -> int:
     tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
     merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None)
     merge["published_on_tf"] = bool(tf_poses)
-    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "params_file": cfg.params_file,
+    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s, "params_file": cfg.params_file,
                                                    "overrides": cfg.overrides}, settle_s=cfg.settle_s,
                            merge=merge)
     kb_per_frame = report["kb_per_query_frame"]

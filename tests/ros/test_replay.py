@@ -52,7 +52,7 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
 
 
 def test_an_agent_that_crashes_mid_replay_recovers(tmp_path):
-    report, _ = replay(BAGS / "apartment_opposite", tmp_path, "--rate", "0.5", "--restart", "b@12")
+    report, _ = replay(BAGS / "apartment_opposite", tmp_path, "--rate", "0.5", "--restart", "b@12", "--tail", "8")
     restart_t = report["events"][0]["t"]
     after = [f for f in report["frames"] if f["t"] > restart_t + 1 and f["verified"] and f["success"]]
     assert {f["agent"] for f in after} == {"a", "b"}, "registration did not recover in both directions"
@@ -69,7 +69,8 @@ def test_a_corrupted_message_is_reported_and_the_replay_goes_on(tmp_path):
                 raw = bytes(raw)[:100]
             w.write(conns[c.id], t, raw)
     (bad / "ground_truth.json").write_text((src / "ground_truth.json").read_text())
-    report, _ = replay(bad, tmp_path)
+    report, _ = replay(bad, tmp_path, "--tail", "5")
+    assert report["config"]["tail_s"] == 5.0 and report["after_bag"]["bytes_per_s"] == {}
     assert len(report["corrupted_messages"]) == 1
     assert report["corrupted_messages"][0]["topic"] == "/a/mapping/instances"
     assert report["wrong_verified"] == 0 and report["success_rate"] > 0
@@ -175,6 +176,7 @@ def test_a_ground_truth_that_cannot_be_scored_is_refused_before_any_node_starts(
     for extra, words in ((["--restart", "z@5"], "the bag has no agent 'z' (its agents: a, b)"),
                          (["--restart", "b@-1"], "the time must be >= 0 s"),
                          (["--rate", "0"], "--rate must be a positive number"),
+                         (["--tail", "-1"], "--tail must be >= 0 s"),
                          (["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file")):
         argv = ["replay", str(BAGS / "apartment_opposite"), "--json", str(tmp_path / "r.json"), *extra]
         assert main(argv) == 2, extra
