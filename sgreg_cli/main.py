@@ -31,6 +31,17 @@ def command_modules() -> tuple[dict[str, ModuleType], dict[str, str]]:
     return dict(sorted(found.items())), broken
 
 
+class _HelpWithDefaults(argparse.HelpFormatter):
+    """Help that names each option's default, unless its text already says what it is."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (action.default in (None, "", [], argparse.SUPPRESS) or isinstance(action.default, bool)
+                or "default" in text or not action.option_strings):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def build_parser(found: dict[str, ModuleType]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sgreg",
@@ -59,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_usage(sys.stderr)
         print(f"sgreg: unknown command '{argv[0]}' (see sgreg --help)", file=sys.stderr)
         return 2
-    sub = argparse.ArgumentParser(prog=f"sgreg {argv[0]}", description=module.HELP)
+    sub = argparse.ArgumentParser(prog=f"sgreg {argv[0]}", description=module.HELP,
+                                  formatter_class=_HelpWithDefaults)
     module.add_arguments(sub)
     args = sub.parse_args(argv[1:])
     return int(module.run(args) or 0)

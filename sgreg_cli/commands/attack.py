@@ -18,11 +18,11 @@ HELP = "flood real nodes with fake peers and measure their CPU and state"
 
 
 def add_arguments(p):
-    p.add_argument("--peers", type=int, default=50)
+    p.add_argument("--peers", type=int, default=50, help="fake peers flooding the nodes")
     p.add_argument("--rate", type=float, default=10.0, help="messages per second per fake peer")
-    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--seconds", type=float, default=60.0, help="how long the flood lasts")
     p.add_argument("--unauthenticated", action="store_true", help="run the nodes without a keystore")
-    p.add_argument("--out", default="results/attack")
+    p.add_argument("--out", default="results/attack", help="output folder (results.json, node logs)")
 
 
 def run(args) -> int:

@@ -22,8 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outliers", type=float, nargs="+", default=[0.5, 0.75, 0.9, 0.95],
                         help="outlier ratios")
     parser.add_argument("--trials", type=int, default=5, help="problems per ratio")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="results/bench_pose.json")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic problems")
+    parser.add_argument("--out", default="results/bench_pose.json", help="JSON file to write")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("suite", help="suite file (YAML), e.g. config/suites/real.yaml")
     p.add_argument("--out", help="output directory (default results/bench_replay_<suite>"
                    "[_seeds<N-M>][_offline])")
-    p.add_argument("--backend", choices=["ros", "offline"], default="ros")
+    p.add_argument("--backend", choices=["ros", "offline"], default="ros",
+                   help="ros: real nodes over DDS; offline: the same cores in one process, faster")
     p.add_argument("--only", nargs="+", metavar="TEXT", help="only bags whose name contains one of these")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ros backend: ROS parameter YAML of the nodes (default "

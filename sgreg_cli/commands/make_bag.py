@@ -99,7 +99,7 @@ def add_arguments(p):
     p.add_argument("--out", required=True, help="new rosbag2 directory, e.g. bags/apartment")
     p.add_argument("--scan-b", help="another capture of the same room for agent b (needs --gt)")
     p.add_argument("--gt", help="pseudo ground truth between captures (rescan_gt.json)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the walks")
     p.add_argument("--agents", type=int, default=2,
                    help="how many agents walk (a, b, c, ...; from the third on, each on a path of its own)")
     p.add_argument("--same-direction", action="store_true",
@@ -197,9 +197,10 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                      trajectory=TrajectoryConfig(speed=spec.speed, clearance=spec.clearance,
                                                  waypoints=spec.waypoints, start=spec.start_a,
                                                  random_start=spec.random_start))
+    log(f"simulating {spec.agents} agents in {spec.scan} ...")
     try:
         sim = simulate(scene, np.random.default_rng(spec.seed), cfg, scene_b=scene_b,
-                       progress=lambda f: log(f"agents simulated: {f:.0%}"))
+                       progress=lambda f: log(f"  agents simulated: {f:.0%}"))
     except ValueError as exc:   # e.g. no free space to walk in
         raise BagSpecError(f"{spec.scan}: {exc}") from None
     T = sim.T_a_b
@@ -224,7 +225,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
             if name == "a":
                 w.write(gt, stamp_ns + 1, serialize_message(transform_msg(T, "a", "b", stamp_ns)))
             if i % 10 == 0 or i == len(events) - 1:
-                log(f"writing: {i + 1}/{len(events)} messages")
+                log(f"  writing: {i + 1}/{len(events)} messages")
     seal_chunks(out)
     info = {
         "T_a_b": T.tolist(),
@@ -261,8 +262,7 @@ def run(args) -> int:
                        clearance=args.clearance, waypoints=args.waypoints,
                        start_a=args.start_a, start_b=args.start_b,
                        random_start=args.random_start, level=not args.no_level)
-        print(f"simulating {args.agents} agents in {args.scan} ...", file=sys.stderr, flush=True)
-        info = make_bag(spec, args.out, log=lambda s: print(f"  {s}", file=sys.stderr, flush=True))
+        info = make_bag(spec, args.out, log=lambda s: print(s, file=sys.stderr, flush=True))
     except BagSpecError as exc:
         print(f"sgreg make-bag: {exc}", file=sys.stderr)
         return 2

@@ -27,9 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replace the pairs of an earlier run in OUT_DIR (a folder holding "
                              "anything else is still refused)")
     parser.add_argument("--n", type=int, default=10, help="number of pairs")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the cuts and transforms")
     parser.add_argument("--overlap", type=float, default=0.5, help="fraction of points both views cover")
-    parser.add_argument("--disjoint", choices=["band", "halves"], default="band")
+    parser.add_argument("--disjoint", choices=["band", "halves"], default="band",
+                        help="how the views avoid sharing samples: band (only where they overlap) or halves")
     parser.add_argument(
         "--noise", default="",
         help="front-end errors, comma list of NAME (its preset rate) or NAME=RATE: confuse (0.15, "

@@ -17,7 +17,7 @@ def add_arguments(p):
     p.add_argument("--json", required=True, help="write the report here")
     p.add_argument("--png", help="plot success, RTE and bandwidth over time (and the merged map "
                                  "beside it, *_merged.png)")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed (default 1)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed")
     p.add_argument("--tail", type=float, metavar="SECONDS",
                    help="keep the nodes running this long after the bag ends (default: long enough "
                         "to measure the link's traffic once the maps are static; a short tail "

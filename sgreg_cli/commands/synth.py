@@ -17,7 +17,7 @@ HELP = "generate a synthetic indoor scene as an instance map directory"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", help="instance map directory to write")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the scene")
     parser.add_argument("--rooms", type=int, default=1,
                         help="rooms (building: rooms along the corridor, besides it)")
     parser.add_argument("--kind", choices=["apartment", "office", "building"], default="apartment",

@@ -31,6 +31,13 @@ def test_make_bag_refuses_a_bad_flag_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("sgreg make-bag: speed (--speed) must be")
     assert not (tmp_path / "bag").exists()
+    # a scan that is not there, or a bag folder that is: one line, nothing said of simulating
+    (tmp_path / "bag").mkdir()
+    for argv in (["make-bag", str(tmp_path / "none"), "--out", str(tmp_path / "new")],
+                 ["make-bag", str(tmp_path), "--out", str(tmp_path / "bag")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and err.startswith("sgreg make-bag: "), err
 
 
 RIGID = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]

@@ -69,6 +69,31 @@ def test_the_command_table_comes_from_the_command_modules(capsys, monkeypatch):
     assert main(["no-such-command"]) == 2
 
 
+def test_every_option_with_a_default_names_it_in_its_help(capsys, monkeypatch):
+    import pytest
+
+    from sgreg_cli.main import command_modules
+
+    monkeypatch.setenv("COLUMNS", "400")   # one line per option
+    for name in command_modules()[0]:
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        lines = capsys.readouterr().out.splitlines()
+        assert not any("(default: )" in line or "(default: [])" in line for line in lines), name
+        parser = __import__("argparse").ArgumentParser()
+        command_modules()[0][name].add_arguments(parser)
+        silent = [a.dest for a in parser._actions if a.option_strings and a.help is None]
+        assert not silent, f"{name}: options without help (their defaults go unsaid): {silent}"
+    with pytest.raises(SystemExit):
+        main(["make-bag", "--help"])
+    out = capsys.readouterr().out
+    assert "--speed SPEED" in out and "(default: 0.5)" in out.split("--speed SPEED")[-1].splitlines()[0]
+    # a help text that says its default itself is left as it is
+    with pytest.raises(SystemExit):
+        main(["replay", "--help"])
+    assert "(default: config/sgreg.yaml)" in capsys.readouterr().out
+
+
 def test_pairs_never_mix_two_runs_in_one_folder(tmp_path, capsys):
     from sgreg_core.maps.instance_map import write_instance_map
     from sgreg_core.simulation.synth import SynthConfig, generate_scene
