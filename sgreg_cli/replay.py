@@ -36,7 +36,8 @@ CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
 class ReplayConfig:
     """rate: playback speed. tail_s: time to keep listening after the bag ends (a dense
     exchange may still be in flight; the agents' traffic in the last tail_s - settle_s of it is
-    what a static map costs the link, unmeasured when tail_s <= settle_s). ready_timeout_s: how long nodes may take to start.
+    what a static map costs the link, unmeasured when tail_s <= settle_s). ready_timeout_s: how
+    long nodes may take to start.
     overrides: ROS parameters given to every node (e.g. weights_path).
     restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
         and start them again at once: a robot whose software crashes mid-mission.

@@ -38,16 +38,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="real scans (default: ../shared/data/scans next to the repository)")
     parser.add_argument("--scan-prefix", default="scannet-picwoon_", help="scan directory prefix")
     parser.add_argument("--rescan-gt", default=RESCAN_GT, help="pseudo ground truth between captures")
-    parser.add_argument("--val-room", default="scene0005", help="room the pairs are cut from (held out of training)")
+    parser.add_argument("--val-room", default="scene0005",
+                        help="room the pairs are cut from (held out of training)")
     parser.add_argument("--cache-dir", default="runs/cache/pairs", help="cut pairs are cached here")
-    parser.add_argument("--text-cache", default="runs/cache/text_minilm.npz", help="label embeddings are cached here")
+    parser.add_argument("--text-cache", default="runs/cache/text_minilm.npz",
+                        help="label embeddings are cached here")
     parser.add_argument("--min-iou", type=float, default=0.3, help="gt node pairs at/above this IoU")
     parser.add_argument("--inlier-threshold", type=float, default=0.1, help="m")
     parser.add_argument("--match", dest="match_overrides", action="append", default=[],
                         metavar="KEY=VALUE", help="override a MatchConfig entry of every model "
                         "(e.g. point_threshold=0.02); repeatable")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--out", default="results/bench_match.json", help="JSON file to write (the resolved config goes beside it, <out>.config.json)")
+    parser.add_argument("--out", default="results/bench_match.json",
+                        help="JSON file to write (the resolved config goes beside it, <out>.config.json)")
 
 
 def _name(path: str) -> str:

@@ -15,7 +15,8 @@ COLUMNS = ("level_graph_ms", "encode_ms", "map_prep_ms", "coarse_ms", "dense_ms"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--nodes", type=int, nargs="+", default=[50, 100, 200, 400], help="graph sizes (objects)")
+    parser.add_argument("--nodes", type=int, nargs="+", default=[50, 100, 200, 400],
+                        help="graph sizes (objects)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per size (the median is reported)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes")
     parser.add_argument("--weights", help="model .safetensors (default: shipped)")

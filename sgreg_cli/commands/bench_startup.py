@@ -40,7 +40,8 @@ class StartupConfig:
 
 
 def add_arguments(p):
-    p.add_argument("--scan", default="", help="instance map directory to cut the pair from (default: a synthetic apartment)")
+    p.add_argument("--scan", default="",
+                   help="instance map directory to cut the pair from (default: a synthetic apartment)")
     p.add_argument("--runs", type=int, default=5, help="repetitions of each measurement (medians are reported)")
     p.add_argument("--seed", type=int, default=0, help="seed of the cut pair")
     p.add_argument("--out", default="results/bench_startup", help="output folder")

@@ -80,7 +80,8 @@ def run(args) -> int:
     tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
     merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None)
     merge["published_on_tf"] = bool(tf_poses)
-    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s, "params_file": cfg.params_file,
+    report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s,
+                                                   "params_file": cfg.params_file,
                                                    "overrides": cfg.overrides}, settle_s=cfg.settle_s,
                            merge=merge)
     kb_per_frame = report["kb_per_query_frame"]
