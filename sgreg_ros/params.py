@@ -9,15 +9,14 @@ Every other parameter is declared read-only, so setting it is refused instead of
 changing nothing."""
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from sgreg_core.config import node_params, range_problem
+from sgreg_core.runtime.auth import is_agent_id
 
 
-AGENT_ID = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
 class ParameterError(ValueError):
@@ -113,12 +112,6 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(on_set)
-
-
-def is_agent_id(name: str) -> bool:
-    """Whether `name` can be an agent id: one token of a ROS name (a letter, then letters,
-    digits and single underscores), since it starts every topic of the agent."""
-    return bool(AGENT_ID.fullmatch(name)) and "__" not in name
 
 
 def frame_ok(frame: str) -> bool:

@@ -30,7 +30,7 @@ from sgreg_core.maps.scene_graph import GraphConfig
 from sgreg_core.pose.estimator import PoseConfig
 from sgreg_core.pose.verdict import VerdictConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
-from sgreg_core.runtime.auth import AuthConfig
+from sgreg_core.runtime.auth import AGENT_ID, AuthConfig, is_agent_id
 from sgreg_core.runtime.health import HealthConfig
 from sgreg_core.runtime.merge import MergeConfig, Merger
 from sgreg_core.runtime.peers import Peers, PeersConfig
@@ -38,7 +38,7 @@ from sgreg_core.runtime import views
 
 from . import convert, markers, qos
 from .node_base import SgregNode
-from .params import AGENT_ID, ParameterError, frame_ok, is_agent_id, params_of, pick
+from .params import ParameterError, frame_ok, params_of, pick
 
 
 @dataclass

@@ -22,7 +22,7 @@ def add_arguments(p):
 def run(args) -> int:
     from pathlib import Path
 
-    from sgreg_ros.params import is_agent_id
+    from sgreg_core.runtime.auth import is_agent_id
     from ..processes import DEFAULT_PARAMS, start_agents, stop
 
     if len(set(args.names)) != len(args.names) or not all(is_agent_id(n) for n in args.names):

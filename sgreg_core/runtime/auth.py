@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -103,7 +104,7 @@ def init_keystore(root: str | Path, agents: list[str]) -> list[tuple[str, str]]:
     root = Path(root)
     for agent in agents:     # every name checked before anything is written
         _check_name(agent)
-        if (root / "private" / f"{agent}.key").exists():
+        if (root / "private" / f"{agent}.key").exists() or (root / "public" / f"{agent}.pub").exists():
             raise KeystoreError(f"{root} already holds a key of agent '{agent}'")
     if len(set(agents)) != len(agents):
         raise KeystoreError(f"agent names repeat: {agents}")
@@ -130,8 +131,19 @@ def add_public_key(root: str | Path, agent: str, public_hex: str) -> str:
         vk = VerifyKey(bytes.fromhex(public_hex.strip()))
     except ValueError as exc:
         raise KeystoreError(f"not an Ed25519 public key: {exc}") from None
-    (Path(root) / "public").mkdir(parents=True, exist_ok=True)
-    (Path(root) / "public" / f"{agent}.pub").write_text(bytes(vk).hex() + "\n")
+    public = Path(root) / "public"
+    held = {path.stem: path.read_text().strip() for path in sorted(public.glob("*.pub"))}
+    given = bytes(vk).hex()
+    if held.get(agent, given) != given:
+        # a new key for a known agent would lock out the old one's messages (and break that
+        # agent if its private key is here): replacing a key is a deliberate act
+        raise KeystoreError(f"{root} already holds another public key of agent '{agent}' "
+                            f"(remove {public / (agent + '.pub')} to replace it)")
+    others = [a for a, h in held.items() if h == given and a != agent]
+    if others:    # one key for two agents: either could sign as the other
+        raise KeystoreError(f"that key is agent '{others[0]}'s in {root}")
+    public.mkdir(parents=True, exist_ok=True)
+    (public / f"{agent}.pub").write_text(given + "\n")
     return key_id(bytes(vk))
 
 
@@ -141,6 +153,16 @@ def list_keys(root: str | Path) -> list[dict]:
              "public": bytes(ks._verify[kid]).hex()} for kid, agent in sorted(ks.owners.items(), key=lambda x: x[1])]
 
 
+AGENT_ID = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def is_agent_id(name: str) -> bool:
+    """Whether `name` can be an agent id: one token of a ROS name (a letter, then letters,
+    digits and single underscores), since it starts every topic of the agent."""
+    return bool(AGENT_ID.fullmatch(name)) and "__" not in name
+
+
 def _check_name(agent: str) -> None:
-    if not agent or not agent.replace("_", "").isalnum():
-        raise KeystoreError(f"agent id {agent!r} must be letters, digits and '_'")
+    if not is_agent_id(agent):
+        raise KeystoreError(f"agent id {agent!r} must be a letter, then letters, digits and single '_' "
+                            "(a ROS name token)")

@@ -25,3 +25,33 @@ def test_a_bad_list_of_names_writes_no_key(tmp_path, names):
     with pytest.raises(KeystoreError):
         init_keystore(tmp_path / "keys", names)
     assert not (tmp_path / "keys").exists()
+
+
+@pytest.mark.parametrize("names", [["é"], ["1a"], ["a__b"], ["_a"]])
+def test_names_the_nodes_would_refuse_get_no_key(tmp_path, names):
+    with pytest.raises(KeystoreError, match="ROS name token"):
+        init_keystore(tmp_path / "keys", names)
+
+
+def test_a_known_agents_key_is_never_replaced_or_shared(tmp_path):
+    """`keys add` over an agent's own key broke that agent (its private key no longer matched),
+    and one key under two names let either sign as the other."""
+    from sgreg_core.runtime.auth import add_public_key, list_keys
+
+    init_keystore(tmp_path, ["a", "b"])
+    keys = {k["agent"]: k["public"] for k in list_keys(tmp_path)}
+    with pytest.raises(KeystoreError, match="another public key of agent 'a'"):
+        add_public_key(tmp_path, "a", keys["b"])
+    with pytest.raises(KeystoreError, match="agent 'b's"):
+        add_public_key(tmp_path, "c", keys["b"])
+    assert add_public_key(tmp_path, "a", keys["a"])        # the same key again: nothing changes
+    Keystore(tmp_path).signer("a")
+    assert {k["agent"] for k in list_keys(tmp_path)} == {"a", "b"}
+    # a peer's key that `add` stored is not replaced by `init` either
+    other = tmp_path / "other"
+    init_keystore(other, ["peer"])
+    peer = list_keys(other)[0]["public"]
+    add_public_key(tmp_path, "peer", peer)
+    with pytest.raises(KeystoreError, match="already holds a key of agent 'peer'"):
+        init_keystore(tmp_path, ["peer"])
+    assert {k["agent"]: k["public"] for k in list_keys(tmp_path)}["peer"] == peer

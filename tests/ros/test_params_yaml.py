@@ -57,7 +57,8 @@ def test_bad_values_are_refused_with_the_reason(param, value):
 
 
 def test_an_empty_peer_list_means_discovery_and_names_must_start_topics():
-    from sgreg_ros.params import frame_ok, is_agent_id
+    from sgreg_core.runtime.auth import is_agent_id
+    from sgreg_ros.params import frame_ok
 
     peers = next(p for p in REGISTRATION if p.name == "peers")
     assert check(peers, None) == []      # what rclpy hands over for "-p peers:=[]" (documented)
