@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import sys
 
+from ..topics import topic_name
+
 NAME = "record"
 HELP = "record live topics into a rosbag2 (MCAP)"
 
 
 def add_arguments(p):
-    p.add_argument("topics", nargs="+", help="topics to record (their types are discovered)")
+    p.add_argument("topics", nargs="+", type=topic_name, help="topics to record (their types are discovered)")
     p.add_argument("--out", required=True, help="new rosbag2 directory")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: Ctrl-C)")
 

@@ -64,11 +64,18 @@ class BandwidthMeter:
 
     def report(self, now: float | None = None, span: float | None = None) -> list[TopicBandwidth]:
         """One row per topic. The rate divides the window's bytes by `span` (seconds) if given,
-        else by the window length (live) or the time between first and last sample (bags)."""
+        else by the window length (live) or the time between first and last sample (bags).
+        Live (`now` and a window), samples older than the window are dropped first: a topic
+        that went quiet reads 0 once its last message has left the window."""
         rows = []
         for topic in sorted(self.samples):
             q = self.samples[topic]
+            if now is not None and self.window_s is not None:
+                while q and q[0][0] < now - self.window_s:
+                    q.popleft()
             if not q:
+                if self.totals[topic]:
+                    rows.append(TopicBandwidth(topic, 0, 0.0, 0.0, 0, 0, self.totals[topic]))
                 continue
             sizes = [s for _, s in q]
             if span is None:

@@ -116,3 +116,17 @@ def test_pairs_never_mix_two_runs_in_one_folder(tmp_path, capsys):
     (out / "notes.txt").write_text("mine")
     assert main(["pairs", str(scan), str(out), "--n", "1", "--overwrite"]) == 2
     assert "notes.txt" in capsys.readouterr().err and (out / "pair_000").is_dir()
+
+
+def test_topic_names_resolve_as_ros_resolves_them_in_the_root_namespace():
+    import argparse
+
+    import pytest
+
+    from sgreg_cli.topics import topic_name
+
+    assert topic_name("b/mapping/instances") == "/b/mapping/instances"
+    assert topic_name("/a/sgreg/coarse") == "/a/sgreg/coarse"
+    for bad in ("", "/", "a//b", "a/1b", "a b", "~/x", "a__b", "a/"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            topic_name(bad)

@@ -138,6 +138,11 @@ def test_bw_of_a_bag(tmp_path):
     assert line.split()[1] == "6"
     total_kb = sum(sizes) / 1e3
     assert f"{total_kb:.2f} kB" in line
+    # a name typed without its leading slash is the same topic, as ros2 resolves it
+    out = subprocess.run(SGREG + ["bw", "--bag", str(src), "b/sgreg/coarse"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert line.split() in [l.split() for l in out.stdout.splitlines()], out.stdout
 
 
 def test_bw_of_a_bag_without_messages_and_bad_live_options(tmp_path):
