@@ -10,6 +10,8 @@ Public API:
     require(path, what) -> Path           resolve, or FileNotFoundError with a one-line reason
     make_folder(path) -> Path             create an output folder (and its parents) and check it
                                           is writable, or OSError with a one-line reason
+    output_file(path) -> Path             the same for the folder of an output file, which must
+                                          not be a folder itself
 """
 from __future__ import annotations
 
@@ -44,4 +46,14 @@ def make_folder(path: str | Path) -> Path:
         raise OSError(f"cannot create folder {p}: {exc.strerror or exc}") from None
     if not os.access(p, os.W_OK):
         raise OSError(f"cannot write into folder {p}")
+    return p
+
+
+def output_file(path: str | Path) -> Path:
+    """Check output file `path` before the work whose result goes there: its folder is made and
+    writable, and it is not a folder (OSError with a one-line reason)."""
+    p = Path(path)
+    if p.is_dir():
+        raise OSError(f"{p} is a folder; give a file name")
+    make_folder(p.parent)
     return p

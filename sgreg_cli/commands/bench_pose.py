@@ -37,9 +37,16 @@ def run(args: argparse.Namespace) -> int:
     from sgreg_core.metrics import rre, rte
     from sgreg_core.pose import PoseConfig, apply_T, clique_pyramid, estimate_pose, make_T, yaw_rotation
 
-    if args.n < 3 or args.trials < 1 or not all(0.0 <= r < 1.0 for r in args.outliers):
-        print("sgreg bench-pose: needs --n >= 3, --trials >= 1 and ratios in [0, 1)",
+    from sgreg_core.paths import output_file
+
+    if args.n < 3 or args.trials < 1 or args.seed < 0 or not all(0.0 <= r < 1.0 for r in args.outliers):
+        print("sgreg bench-pose: needs --n >= 3, --trials >= 1, --seed >= 0 and ratios in [0, 1)",
               file=sys.stderr)
+        return 2
+    try:
+        output_file(args.out)
+    except OSError as exc:
+        print(f"sgreg bench-pose: {exc}", file=sys.stderr)
         return 2
     cfg = PoseConfig()
     rng = np.random.default_rng(args.seed)

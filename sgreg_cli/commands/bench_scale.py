@@ -26,15 +26,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import json
-    from pathlib import Path
 
     import torch
 
     from sgreg_core.bench.scale_bench import ScaleConfig, growth, run_scale
     from sgreg_core.net.model import load_model
 
-    if min(args.nodes) < 5 or args.repeats < 1:
-        print("sgreg bench-scale: --nodes >= 5 and --repeats >= 1", file=sys.stderr)
+    from sgreg_core.paths import make_folder
+
+    if min(args.nodes) < 5 or args.repeats < 1 or args.seed < 0:
+        print("sgreg bench-scale: --nodes >= 5, --repeats >= 1 and --seed >= 0", file=sys.stderr)
+        return 2
+    try:
+        out = make_folder(args.out)
+    except OSError as exc:
+        print(f"sgreg bench-scale: {exc}", file=sys.stderr)
         return 2
     torch.set_num_threads(1)
     cfg = ScaleConfig(nodes=tuple(sorted(args.nodes)), repeats=args.repeats, seed=args.seed)
@@ -54,10 +60,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['nodes']:6d} {r['correspondences']:6d} " + " ".join(f"{r[k]:14.1f}" for k in keys)
               + f" {r['coarse_message_kb']:10.1f} {r['dense_message_kb']:9.1f} {r['peak_rss_mb']:8.0f}"
               + f" {int(r['coarse_ok'])}/{int(r['dense_ok'])}")
-    exponents = {k: growth(rows, k) for k in keys}
-    print("growth exponent k (time ~ nodes^k): " + ", ".join(f"{k[:-3]} {v:.2f}" for k, v in exponents.items()))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    # one size gives no growth (null in the JSON, which has no NaN)
+    exponents = {k: growth(rows, k) if len(rows) > 1 else None for k in keys}
+    print("growth exponent k (time ~ nodes^k): " + (", ".join(f"{k[:-3]} {v:.2f}" for k, v in exponents.items())
+                                                    if len(rows) > 1 else "needs two sizes or more"))
     (out / "results.json").write_text(json.dumps({"rows": rows, "growth_exponent": exponents,
                                                   "weights_id": model.weights_id,
                                                   "config": dataclasses.asdict(cfg)}, indent=1) + "\n")

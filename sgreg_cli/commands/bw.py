@@ -42,7 +42,7 @@ def run(args) -> int:
     from sgreg_core.bench.bandwidth import HEADER, BandwidthMeter, format_table
 
     # NaN compares False: refused too
-    if not args.bag and not (args.window > 0 and 0 <= args.duration < float("inf")):
+    if not args.bag and not (0 < args.window < float("inf") and 0 <= args.duration < float("inf")):
         print(f"sgreg bw: --window must be > 0 s and --duration >= 0 s (0: until Ctrl-C), got "
               f"{args.window} and {args.duration}", file=sys.stderr)
         return 2

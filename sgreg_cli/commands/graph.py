@@ -21,15 +21,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.maps.scene_graph import GraphConfig, build_scene_graph
+    from sgreg_core.plots import figure_path
 
     try:
+        if args.repeat < 1:
+            raise ValueError(f"--repeat must be >= 1, got {args.repeat}")
+        cfg = GraphConfig() if args.voxel is None else GraphConfig(voxel_size=args.voxel)
+        if args.png:
+            figure_path(args.png)
         imap = read_instance_map(args.scan_dir)
-    except InstanceMapError as exc:
+    except (InstanceMapError, OSError, ValueError) as exc:
         print(f"sgreg graph: {exc}", file=sys.stderr)
         return 2
-    cfg = GraphConfig() if args.voxel is None else GraphConfig(voxel_size=args.voxel)
     times = []
-    for _ in range(max(1, args.repeat)):
+    for _ in range(args.repeat):
         t0 = time.perf_counter()
         graph = build_scene_graph(imap, cfg)
         times.append(time.perf_counter() - t0)

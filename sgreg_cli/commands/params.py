@@ -55,6 +55,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.out:
         sys.stdout.write(text)
         return 0
-    Path(args.out).write_text(text)
+    from sgreg_core.paths import output_file
+
+    try:
+        output_file(args.out).write_text(text)
+    except OSError as exc:
+        print(f"sgreg params: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     print(f"wrote {args.out}")
     return 0

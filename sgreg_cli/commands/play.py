@@ -19,7 +19,8 @@ def add_arguments(p):
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="first wait up to S seconds until every topic has a subscriber")
     p.add_argument("--clock", type=float, nargs="?", const=40.0, default=0.0, metavar="HZ",
-                   help="publish the bag's time on /clock (default 40 Hz, as ros2 bag play)")
+                   help="publish the bag's time on /clock, at HZ (40 when no HZ is given, as ros2 bag "
+                        "play); default: no /clock")
 
 
 def run(args) -> int:
@@ -28,6 +29,15 @@ def run(args) -> int:
 
     from ..bags import BagError, play_bag
 
+    inf = float("inf")
+    bad = [f"--{name} must be {rule}, got {value}" for name, value, ok, rule in (
+        ("rate", args.rate, 0 < args.rate < inf, "a positive number"),
+        ("delay", args.delay, 0 <= args.delay < inf, ">= 0 s"),
+        ("wait-subscribers", args.wait_subscribers, 0 <= args.wait_subscribers < inf, ">= 0 s"),
+        ("clock", args.clock, 0 <= args.clock < inf, ">= 0 Hz (0: no /clock)")) if not ok]
+    if bad:    # NaN compares False: refused too
+        print(f"sgreg play: {bad[0]}", file=sys.stderr)
+        return 2
     rclpy.init()
     node = rclpy.create_node("sgreg_play")
     print(f"sgreg play: playing {args.bag}", file=sys.stderr, flush=True)

@@ -6,6 +6,7 @@ labels of any instance maps under --scans."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 NAME = "text-table"
@@ -35,16 +36,29 @@ def vocabulary(scans: str | None = None) -> list[str]:
     for kind in KINDS.values():
         labels |= {kind.nyu40, *kind.names}
     if scans:
-        for path in sorted(Path(scans).glob("*/instances.json")):
-            labels |= {item["label"] for item in json.loads(path.read_text())}
+        if not Path(scans).is_dir():
+            raise ValueError(f"--scans {scans} is not a folder")
+        for path in sorted(Path(scans).rglob("instances.json")):
+            try:
+                items = json.loads(path.read_text())
+                labels |= {item["label"] for item in items}
+            except (OSError, ValueError, TypeError, KeyError) as exc:
+                raise ValueError(f"{path}: not a list of instances with a 'label' ({exc})") from None
     return sorted({normalize_label(s) for s in labels})
 
 
 def run(args) -> int:
     from sgreg_core.net.text import SHIPPED_TABLE, TextEncoder
 
-    labels = vocabulary(args.scans)
+    from sgreg_core.paths import output_file
+
     out = Path(args.out) if args.out else SHIPPED_TABLE
+    try:
+        labels = vocabulary(args.scans)
+        output_file(out)
+    except (OSError, ValueError) as exc:
+        print(f"sgreg text-table: {exc}", file=sys.stderr)
+        return 2
     TextEncoder().write_table(out, labels)
     print(f"wrote {len(labels)} label embeddings to {out} ({out.stat().st_size / 1024:.0f} kB)")
     return 0

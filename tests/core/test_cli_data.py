@@ -130,3 +130,36 @@ def test_topic_names_resolve_as_ros_resolves_them_in_the_root_namespace():
     for bad in ("", "/", "a//b", "a/1b", "a b", "~/x", "a__b", "a/"):
         with pytest.raises(argparse.ArgumentTypeError):
             topic_name(bad)
+
+
+def test_outputs_and_numbers_are_checked_before_any_work(tmp_path, capsys):
+    """Each refused in one line, exit 2, before the work (a benchmark used to fail on its output
+    folder only after the whole run, with a traceback)."""
+    from sgreg_core.maps.instance_map import write_instance_map
+    from sgreg_core.simulation.synth import SynthConfig, generate_scene
+
+    scan = tmp_path / "scene"
+    write_instance_map(generate_scene(0, SynthConfig(density=150.0)), scan)
+    (tmp_path / "a_file").write_text("")
+    (tmp_path / "scans" / "room").mkdir(parents=True)
+    (tmp_path / "scans" / "room" / "instances.json").write_text('[{"no_label": 1}]')
+    cases = [
+        (["params", "--out", str(tmp_path)], "is a folder"),
+        (["params", "--out", str(tmp_path / "a_file" / "p.yaml")], "cannot write"),
+        (["graph", str(scan), "--voxel", "0"], "voxel_size"),
+        (["graph", str(scan), "--voxel", "nan"], "voxel_size"),
+        (["graph", str(scan), "--repeat", "0"], "--repeat must be >= 1"),
+        (["graph", str(scan), "--png", str(tmp_path / "g.txt")], "must name a picture format"),
+        (["graph", str(scan), "--png", str(tmp_path / "a_file" / "g.png")], "cannot create folder"),
+        (["bench-pose", "--out", str(tmp_path)], "is a folder"),
+        (["bench-pose", "--seed", "-1"], "--seed >= 0"),
+        (["bench-scale", "--out", str(tmp_path / "a_file")], "cannot create folder"),
+        (["text-table", "--out", str(tmp_path)], "is a folder"),
+        (["text-table", "--scans", str(tmp_path / "none"), "--out", str(tmp_path / "t.npz")], "is not a folder"),
+        (["text-table", "--scans", str(tmp_path / "scans"), "--out", str(tmp_path / "t.npz")], "with a 'label'"),
+    ]
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith(f"sgreg {argv[0]}: ") and words in err and err.count("\n") == 1, (argv, err)
+    assert not (tmp_path / "t.npz").exists()

@@ -1,6 +1,7 @@
 """sgreg play / record / bw on a small bag written here: real processes over DDS on loopback."""
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -150,10 +151,21 @@ def test_bw_of_a_bag_without_messages_and_bad_live_options(tmp_path):
     write_bag(empty, n=0)
     out = subprocess.run(SGREG + ["bw", "--bag", str(empty)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.splitlines() == [f"bag {empty}: 0.0 s", "(no messages)"], out
-    for bad in (["--window", "0"], ["--duration", "-1"], ["--duration", "nan"]):
+    for bad in (["--window", "0"], ["--window", "inf"], ["--duration", "-1"], ["--duration", "nan"]):
         out = subprocess.run(SGREG + ["bw", *bad], capture_output=True, text=True, timeout=60)
         assert out.returncode == 2 and out.stderr.startswith("sgreg bw: --window must be") \
             and out.stderr.count("\n") == 1, (bad, out.stderr)
+
+
+def test_play_refuses_bad_numbers_before_it_starts(capsys):
+    from sgreg_cli.main import main
+
+    bag = str(Path(__file__).resolve().parents[2] / "bags" / "apartment_opposite")
+    for flag, value in (("--rate", "nan"), ("--rate", "0"), ("--delay", "nan"), ("--delay", "inf"),
+                        ("--wait-subscribers", "-1"), ("--clock", "-5"), ("--clock", "nan")):
+        assert main(["play", bag, flag, value]) == 2, (flag, value)
+        err = capsys.readouterr().err
+        assert err.startswith(f"sgreg play: {flag} must be") and err.count("\n") == 1, err
 
 
 def test_play_refuses_a_directory_that_is_not_a_bag(tmp_path):
