@@ -22,12 +22,17 @@ def add_arguments(p):
 def run(args) -> int:
     from pathlib import Path
 
-    from sgreg_core.runtime.auth import is_agent_id
+    from sgreg_core.runtime.auth import KeystoreError, is_agent_id
     from ..processes import DEFAULT_PARAMS, start_agents, stop
 
     if len(set(args.names)) != len(args.names) or not all(is_agent_id(n) for n in args.names):
         print("sgreg agents: agent names must be distinct agent ids: a letter, then letters, digits "
               "and single underscores (a, b, robot_1, ...)", file=sys.stderr)
+        return 2
+    try:
+        _check_before_start(args)
+    except (KeystoreError, OSError, ValueError) as exc:
+        print(f"sgreg agents: {exc}", file=sys.stderr)
         return 2
     overrides = {k: v for k, v in (("weights_path", args.weights), ("keystore", args.keystore)) if v} or None
     procs = start_agents(args.names, args.params_file or DEFAULT_PARAMS, overrides,
@@ -53,3 +58,30 @@ def run(args) -> int:
         stop(procs)
         print("all nodes stopped", flush=True)
     return 0
+
+
+def _check_before_start(args) -> None:
+    """What the nodes would otherwise find only once started (a node without its model or its
+    key stays up and reports ERROR on /diagnostics, as a robot's node should, so `agents`
+    would run on with nodes that do nothing): OSError, ValueError or KeystoreError in one line."""
+    from pathlib import Path
+
+    from sgreg_core.paths import make_folder
+    from sgreg_core.runtime.auth import Keystore
+
+    if args.weights:
+        weights = Path(args.weights)
+        for path in (weights, weights.with_suffix(".json")):
+            if not path.is_file():
+                raise ValueError(f"model weights need {path} (--weights {args.weights})")
+    if args.params_file:
+        try:
+            Path(args.params_file).read_bytes()
+        except OSError as exc:
+            raise ValueError(f"cannot read --params-file {args.params_file}: {exc.strerror or exc}") from None
+    if args.keystore:
+        keystore = Keystore(args.keystore)
+        for name in args.names:
+            keystore.signer(name)
+    if args.log_dir:
+        make_folder(args.log_dir)

@@ -313,7 +313,11 @@ def load_model(path: str | Path | None = None, text_encoder: TextEncoder | None 
     info_path = path.with_suffix(".json")
     if not path.exists() or not info_path.exists():
         raise FileNotFoundError(f"model weights need {path} and {info_path}")
-    info = json.loads(info_path.read_text())
-    model = SGRegModel(ModelConfig.from_dict(info.get("config")), text_encoder=text_encoder)
-    model.load_state_dict(load_file(str(path)))
+    try:
+        info = json.loads(info_path.read_text())
+        model = SGRegModel(ModelConfig.from_dict(info.get("config")), text_encoder=text_encoder)
+        model.load_state_dict(load_file(str(path)))
+    except Exception as exc:   # bad JSON, a cut file (SafetensorError), wrong shapes: one message
+        raise ValueError(f"model weights {path} (with {info_path.name}) cannot be loaded: "
+                         f"{' '.join(str(exc).split())[:300]}") from None
     return model.eval()

@@ -187,3 +187,19 @@ def test_shipped_weights_load_with_their_recorded_id(text):
     model = load_model(text_encoder=text)
     assert model.weights_id == info["weights_id"]
     assert model.cfg == ModelConfig.from_dict(info["config"])
+
+
+def test_damaged_weights_are_one_clear_error(tmp_path):
+    import shutil
+
+    from sgreg_core.net.model import DEFAULT_WEIGHTS
+
+    cut = tmp_path / "sgreg.safetensors"
+    cut.write_bytes(DEFAULT_WEIGHTS.read_bytes()[:1000])
+    shutil.copy(DEFAULT_WEIGHTS.with_suffix(".json"), cut.with_suffix(".json"))
+    with pytest.raises(ValueError, match="cannot be loaded"):
+        load_model(cut)
+    shutil.copy(DEFAULT_WEIGHTS, cut)
+    cut.with_suffix(".json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"sgreg.safetensors \(with sgreg.json\) cannot be loaded"):
+        load_model(cut)

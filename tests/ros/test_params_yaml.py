@@ -74,3 +74,26 @@ def test_sgreg_agents_refuses_names_the_nodes_would_refuse(names, capsys):
 
     assert main(["agents", "--names", *names]) == 2       # before any node is started
     assert capsys.readouterr().err.startswith("sgreg agents: agent names must be distinct agent ids")
+
+
+def test_sgreg_agents_refuses_what_its_nodes_could_not_use_before_starting_them(tmp_path, capsys, monkeypatch):
+    """A node without its model or key stays up and reports ERROR (a robot's node should), so
+    `sgreg agents` would have run on with nodes that do nothing."""
+    from sgreg_cli import processes
+    from sgreg_cli.main import main
+    from sgreg_core.runtime.auth import init_keystore
+
+    def no_node(*args, **kwargs):
+        raise AssertionError("a node was started")
+
+    monkeypatch.setattr(processes, "start_agents", no_node)
+    init_keystore(tmp_path / "keys", ["a"])
+    (tmp_path / "a_file").write_text("")
+    for extra, words in ((["--weights", str(tmp_path / "w.safetensors")], "model weights need"),
+                         (["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file"),
+                         (["--keystore", str(tmp_path)], "is not a keystore"),
+                         (["--keystore", str(tmp_path / "keys")], "no private key of agent 'b'"),
+                         (["--log-dir", str(tmp_path / "a_file")], "cannot create folder")):
+        assert main(["agents", "--names", "a", "b", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith("sgreg agents: ") and words in err and err.count("\n") == 1, err
