@@ -14,7 +14,7 @@ HELP = "build a scene graph from an instance map and draw it"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scan_dir", help="instance map directory")
     parser.add_argument("--png", help="write a top-view picture of the graph here")
-    parser.add_argument("--voxel", type=float, default=None, help="voxel size in m (default from GraphConfig)")
+    parser.add_argument("--voxel", type=float, default=None, help="voxel size in m (default: GraphConfig.voxel_size, 0.05)")
     parser.add_argument("--repeat", type=int, default=5, help="builds to time (the best is reported)")
 
 

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
              "wrong class), merge (0.1, fused with a neighbour), invent (0.1, invented instances "
              "per instance), tilt (2.0, largest gravity tilt of a view, deg), jitter (0.01 m), "
              "overseg (0.1), drop (0.1), paraphrase (0.3), partial (0.2); see "
-             "sgreg_core/simulation/noise.py")
+             "sgreg_core/simulation/noise.py (default: none)")
 
 
 def _clear_out_dir(out_dir: Path, overwrite: bool) -> None:

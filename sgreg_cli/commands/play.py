@@ -13,7 +13,7 @@ HELP = "publish a recorded bag with its original timing"
 def add_arguments(p):
     p.add_argument("bag", help="rosbag2 directory (metadata.yaml + .mcap)")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
-    p.add_argument("--topics", nargs="*", type=topic_name, help="play only these topics")
+    p.add_argument("--topics", nargs="*", type=topic_name, help="play only these topics (default: all)")
     p.add_argument("--delay", type=float, default=1.0,
                    help="seconds between advertising the topics and the first message")
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",

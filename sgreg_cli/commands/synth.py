@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--noise", default="",
         help="front-end errors, comma list of NAME or NAME=RATE: confuse, merge, invent, jitter, "
              "overseg, drop, paraphrase, partial (tilt only tilts registration pairs); see "
-             "sgreg pairs --help")
+             "sgreg pairs --help (default: none)")
     parser.add_argument("--png", action="store_true", help="also draw OUT_DIR/graph.png")
 
 

@@ -17,7 +17,7 @@ def add_arguments(p):
     p.add_argument("bag", help="rosbag2 directory (with ground_truth.json, or a recorded /tf)")
     p.add_argument("--png", required=True, help="write the picture here")
     p.add_argument("--frame", default=None,
-                   help="merged frame on /tf (default: MergeConfig.merged_frame)")
+                   help="merged frame on /tf (default: the nodes' merged_frame, sgreg_merged)")
 
 
 def run(args) -> int:
@@ -45,6 +45,9 @@ def run(args) -> int:
         return 2
     frame = args.frame or MergeConfig().merged_frame
     poses = {child.split("/")[0]: T for child, (parent, T) in tf.items() if parent == frame}
+    if args.frame and not poses and tf:    # a frame typed wrong is said, not silently replaced
+        print(f"sgreg view: the bag's /tf has no frame {frame} (its frames: "
+              f"{', '.join(sorted({parent for parent, _ in tf.values()}))})", file=sys.stderr)
     if poses:
         source = f"placed by the merged frame on /tf ({frame})"
     elif gt is not None:

@@ -163,3 +163,18 @@ def test_outputs_and_numbers_are_checked_before_any_work(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith(f"sgreg {argv[0]}: ") and words in err and err.count("\n") == 1, (argv, err)
     assert not (tmp_path / "t.npz").exists()
+
+
+def test_defaults_named_in_help_texts_are_the_code_defaults():
+    """Where a help text names a default itself, it names the value the code uses."""
+    from sgreg_core.maps.scene_graph import GraphConfig
+    from sgreg_core.runtime.merge import MergeConfig
+    from sgreg_cli.commands import graph, view
+
+    helps = {}
+    for module in (graph, view):
+        parser = __import__("argparse").ArgumentParser()
+        module.add_arguments(parser)
+        helps.update({a.dest: a.help for a in parser._actions})
+    assert f"{GraphConfig().voxel_size:g})" in helps["voxel"]
+    assert MergeConfig().merged_frame in helps["frame"]
