@@ -24,6 +24,16 @@ class NodeProcess:
     log_path: Path | None = None
 
 
+def check_params_file(path: str | Path | None) -> None:
+    """ValueError in one line when the nodes could not read `path` (else they fail only once
+    started, each in its own log)."""
+    if path:
+        try:
+            Path(path).read_bytes()
+        except OSError as exc:
+            raise ValueError(f"cannot read --params-file {path}: {exc.strerror or exc}") from None
+
+
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,
                  overrides: dict | None = None) -> list[str]:
     """The command line of one node: `python -m sgreg_ros <exe> --ros-args -r __ns:=/<agent> ...`.

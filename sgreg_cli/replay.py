@@ -157,11 +157,7 @@ def _check_before_start(cfg: ReplayConfig, names: list[str]) -> None:
             raise ValueError(f"--restart: the bag has no agent {agent!r} (its agents: {', '.join(names)})")
         if not 0 <= at < float("inf"):
             raise ValueError(f"--restart: the time must be >= 0 s, got {at}")
-    if cfg.params_file:
-        try:
-            Path(cfg.params_file).read_bytes()
-        except OSError as exc:
-            raise ValueError(f"cannot read --params-file {cfg.params_file}: {exc.strerror or exc}") from None
+    processes.check_params_file(cfg.params_file)
 
 
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:

@@ -69,16 +69,14 @@ def _check_before_start(args) -> None:
     from sgreg_core.paths import make_folder
     from sgreg_core.runtime.auth import Keystore
 
+    from ..processes import check_params_file
+
     if args.weights:
         weights = Path(args.weights)
         for path in (weights, weights.with_suffix(".json")):
             if not path.is_file():
                 raise ValueError(f"model weights need {path} (--weights {args.weights})")
-    if args.params_file:
-        try:
-            Path(args.params_file).read_bytes()
-        except OSError as exc:
-            raise ValueError(f"cannot read --params-file {args.params_file}: {exc.strerror or exc}") from None
+    check_params_file(args.params_file)
     if args.keystore:
         keystore = Keystore(args.keystore)
         for name in args.names:
