@@ -147,6 +147,7 @@ class PlayReport:
     corrupted: list = field(default_factory=list)   # (topic, index, error)
     per_topic: dict = field(default_factory=dict)
     clock: tuple[float, float] | None = None
+    interrupted: str = ""     # what ended play before the bag's end: "Ctrl-C" or "shutdown"
 
 
 def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None = None,
@@ -184,22 +185,30 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
             time.sleep(0.05)
         clock.sleep_until(time.monotonic() + delay)
         t0_bag, t0_wall = None, time.monotonic()
-        for index, (conn, t_ns, raw) in enumerate(read_messages(reader, conns, path)):
-            if should_stop() or not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
-                break
-            if t0_bag is None:
-                t0_bag = t_ns
-                report.clock = (t0_wall, t_ns * 1e-9)
-                clock.start(t0_wall, t_ns)
-            clock.sleep_until(t0_wall + (t_ns - t0_bag) * 1e-9 / rate)
-            problem = _message_problem(bytes(raw), classes[conn.id])
-            if problem:
-                report.corrupted.append((conn.topic, index, problem[:200]))
-                log(f"bag message {index} on {conn.topic} is corrupted ({problem}); skipped")
-                continue
-            pubs[conn.topic].publish(bytes(raw))
-            report.published += 1
-            report.per_topic[conn.topic] = report.per_topic.get(conn.topic, 0) + 1
+        try:
+            for index, (conn, t_ns, raw) in enumerate(read_messages(reader, conns, path)):
+                if should_stop() or not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
+                    report.interrupted = "" if should_stop() else "shutdown"
+                    break
+                if t0_bag is None:
+                    t0_bag = t_ns
+                    report.clock = (t0_wall, t_ns * 1e-9)
+                    clock.start(t0_wall, t_ns)
+                clock.sleep_until(t0_wall + (t_ns - t0_bag) * 1e-9 / rate)
+                problem = _message_problem(bytes(raw), classes[conn.id])
+                if problem:
+                    report.corrupted.append((conn.topic, index, problem[:200]))
+                    log(f"bag message {index} on {conn.topic} is corrupted ({problem}); skipped")
+                    continue
+                pubs[conn.topic].publish(bytes(raw))
+                report.published += 1
+                report.per_topic[conn.topic] = report.per_topic.get(conn.topic, 0) + 1
+        except KeyboardInterrupt:     # Ctrl-C: what was played is still reported
+            report.interrupted = "Ctrl-C"
+        except Exception:
+            if rclpy.ok():
+                raise
+            report.interrupted = "shutdown"   # SIGTERM shut the context down mid-publish
         # a reliable message still in flight dies with the process: wait for the readers' acks
         for pub in pubs.values() if rclpy.ok() else ():
             pub.wait_for_all_acked(Duration(seconds=flush_timeout))

@@ -27,7 +27,7 @@ def run(args) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from ..bags import BagError, play_bag
+    from ..bags import BagError, open_bag, play_bag
 
     inf = float("inf")
     bad = [f"--{name} must be {rule}, got {value}" for name, value, ok, rule in (
@@ -37,6 +37,11 @@ def run(args) -> int:
         ("clock", args.clock, 0 <= args.clock < inf, ">= 0 Hz (0: no /clock)")) if not ok]
     if bad:    # NaN compares False: refused too
         print(f"sgreg play: {bad[0]}", file=sys.stderr)
+        return 2
+    try:
+        open_bag(args.bag).close()      # a bad bag is said before anything is announced
+    except BagError as exc:
+        print(f"sgreg play: {exc}", file=sys.stderr)
         return 2
     rclpy.init()
     node = rclpy.create_node("sgreg_play")
@@ -57,9 +62,10 @@ def run(args) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-    print(f"played {report.published} messages "
+    print((f"stopped by {report.interrupted}: " if report.interrupted else "") + f"played {report.published} messages "
           + ", ".join(f"{t}: {n}" for t, n in sorted(report.per_topic.items())))
     if report.corrupted:
         print(f"{len(report.corrupted)} corrupted messages skipped: "
               + "; ".join(f"#{i} on {t}" for t, i, _ in report.corrupted))
-    return 0
+    # 128 + SIGINT, as a shell reports Ctrl-C; a shutdown (SIGTERM, as launch stops nodes) is clean
+    return 130 if report.interrupted == "Ctrl-C" else 0

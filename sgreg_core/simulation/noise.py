@@ -266,7 +266,8 @@ class NoiseConfig:
     def __post_init__(self):
         for name in self.PRESETS:
             rate = getattr(self, name)
-            if not 0.0 <= rate <= (1.0 if name in _PROBABILITIES else np.inf):
+            top = 1.0 if name in _PROBABILITIES else 90.0 if name == "tilt" else np.inf   # tilt: deg
+            if not 0.0 <= rate <= top:
                 raise ValueError(f"noise option {name}: rate {rate} out of range")
 
     @classmethod

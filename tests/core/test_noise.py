@@ -204,4 +204,6 @@ def test_preset_parsing():
         NoiseConfig.preset("merge=lots")
     with pytest.raises(ValueError, match="out of range"):
         NoiseConfig.preset("drop=1.5")
+    with pytest.raises(ValueError, match="tilt: rate 1000.0 out of range"):     # degrees, <= 90
+        NoiseConfig.preset("tilt=1000")
     assert NoiseConfig.preset("invent=2").invent == 2.0          # a count per instance, not a probability

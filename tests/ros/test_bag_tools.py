@@ -117,6 +117,16 @@ def test_play_ends_cleanly_on_sigterm(tmp_path):
     out, err = play.communicate(timeout=20)
     assert play.returncode == 0, err
     assert "Traceback" not in err, err
+    assert out.startswith("stopped by shutdown: played "), out     # what was played is said
+    # Ctrl-C: the same summary, and the shell's code for it
+    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert play.stderr.readline().startswith("sgreg play: playing")
+    time.sleep(2.0)
+    play.send_signal(signal.SIGINT)
+    out, err = play.communicate(timeout=20)
+    assert play.returncode == 130 and out.startswith("stopped by Ctrl-C: played "), (out, err)
+    assert "Traceback" not in err, err
 
 
 def test_corrupted_message_is_reported_and_the_rest_plays(tmp_path):
