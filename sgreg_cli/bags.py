@@ -187,8 +187,10 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
         t0_bag, t0_wall = None, time.monotonic()
         try:
             for index, (conn, t_ns, raw) in enumerate(read_messages(reader, conns, path)):
-                if should_stop() or not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
-                    report.interrupted = "" if should_stop() else "shutdown"
+                if should_stop():
+                    break
+                if not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
+                    report.interrupted = "shutdown"
                     break
                 if t0_bag is None:
                     t0_bag = t_ns

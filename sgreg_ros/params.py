@@ -17,8 +17,6 @@ from sgreg_core.config import node_params, range_problem
 from sgreg_core.runtime.auth import is_agent_id
 
 
-
-
 class ParameterError(ValueError):
     """A parameter value the node refuses at start."""
 

@@ -31,7 +31,6 @@ def run(args: argparse.Namespace) -> int:
 
     from sgreg_core.bench.scale_bench import ScaleConfig, growth, run_scale
     from sgreg_core.net.model import load_model
-
     from sgreg_core.paths import make_folder
 
     if min(args.nodes) < 5 or args.repeats < 1 or args.seed < 0:

@@ -49,7 +49,6 @@ def vocabulary(scans: str | None = None) -> list[str]:
 
 def run(args) -> int:
     from sgreg_core.net.text import SHIPPED_TABLE, TextEncoder
-
     from sgreg_core.paths import output_file
 
     out = Path(args.out) if args.out else SHIPPED_TABLE

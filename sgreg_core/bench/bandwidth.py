@@ -58,8 +58,12 @@ class BandwidthMeter:
         q.append((t, size))
         self.totals[topic] += size
         self.counts[topic] += 1
+        self._forget_before(q, t)
+
+    def _forget_before(self, q: deque, now: float) -> None:
+        """Drop the samples of `q` that the window, ending at `now`, has left behind."""
         if self.window_s is not None:
-            while q and q[0][0] < t - self.window_s:
+            while q and q[0][0] < now - self.window_s:
                 q.popleft()
 
     def report(self, now: float | None = None, span: float | None = None) -> list[TopicBandwidth]:
@@ -70,9 +74,8 @@ class BandwidthMeter:
         rows = []
         for topic in sorted(self.samples):
             q = self.samples[topic]
-            if now is not None and self.window_s is not None:
-                while q and q[0][0] < now - self.window_s:
-                    q.popleft()
+            if now is not None:
+                self._forget_before(q, now)
             if not q:
                 if self.totals[topic]:
                     rows.append(TopicBandwidth(topic, 0, 0.0, 0.0, 0, 0, self.totals[topic]))
