@@ -182,3 +182,24 @@ def test_a_ground_truth_that_cannot_be_scored_is_refused_before_any_node_starts(
         assert main(argv) == 2, extra
         err = capsys.readouterr().err
         assert err.startswith("sgreg replay: ") and words in err and err.count("\n") == 1, err
+
+
+def test_view_places_maps_by_the_recorded_merged_frame_and_says_when_frame_is_not_on_tf(
+        tmp_path, capsys, monkeypatch):
+    """A bag whose /tf holds the merged frame is drawn by it; --frame naming a frame the /tf
+    lacks is said in one line (with the frames it has) and the ground truth places the maps."""
+    import numpy as np
+
+    from sgreg_cli import bags
+    from sgreg_cli.main import main
+
+    merged = {"a/map": ("sgreg_merged", np.eye(4)), "b/map": ("sgreg_merged", np.eye(4))}
+    monkeypatch.setattr(bags, "tf_in_bag", lambda path: merged)
+    png = tmp_path / "v.png"
+    assert main(["view", str(BAGS / "apartment_opposite"), "--png", str(png)]) == 0
+    out = capsys.readouterr()
+    assert "placed by the merged frame on /tf (sgreg_merged)" in out.out and not out.err
+    assert main(["view", str(BAGS / "apartment_opposite"), "--png", str(png), "--frame", "wrold"]) == 0
+    out = capsys.readouterr()
+    assert out.err == "sgreg view: the bag's /tf has no frame wrold (its frames: sgreg_merged)\n"
+    assert "placed by the ground truth (a's map frame)" in out.out and png.stat().st_size > 10_000
