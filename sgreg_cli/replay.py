@@ -5,6 +5,7 @@ sgreg_core.bench.replay_score and merge_score."""
 from __future__ import annotations
 
 import json
+import sys
 import tempfile
 import threading
 import time
@@ -157,7 +158,8 @@ def _check_before_start(cfg: ReplayConfig, names: list[str]) -> None:
             raise ValueError(f"--restart: the bag has no agent {agent!r} (its agents: {', '.join(names)})")
         if not 0 <= at < float("inf"):
             raise ValueError(f"--restart: the time must be >= 0 s, got {at}")
-    processes.check_params_file(cfg.params_file)
+    for line in processes.check_params_file(cfg.params_file):
+        print(f"warning: --params-file {cfg.params_file}: {line}", file=sys.stderr)
 
 
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:

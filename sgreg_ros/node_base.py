@@ -15,7 +15,8 @@ from sgreg_core.runtime.clock import RunClock
 from sgreg_core.runtime.health import Health, HealthConfig
 
 from . import convert, qos
-from .params import Param, accept_live_changes, agent_name_from, declare_and_read, pick
+from .params import (Param, accept_live_changes, agent_name_from, declare_and_read, node_parameter_names,
+                     pick, unknown_parameters)
 from .signing import MessageAuth
 
 
@@ -32,6 +33,9 @@ class SgregNode(Node):
         super().__init__(executable)   # the node is called what it is run as
         self.table = table
         self.p = declare_and_read(self, table)
+        # rclpy keeps what a params file or -p gave this node, declared or not
+        for line in unknown_parameters(getattr(self, "_parameter_overrides", {}), node_parameter_names()):
+            self.get_logger().warning(line)
         self.name = agent_name_from(self, self.p["agent_name"])
         self.run_clock = RunClock()
         self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), self.clock_s())

@@ -9,12 +9,19 @@ Every other parameter is declared read-only, so setting it is refused instead of
 changing nothing."""
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
+from typing import Iterable
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from sgreg_core.config import node_params, range_problem
 from sgreg_core.runtime.auth import is_agent_id
+
+
+# parameters rclpy declares on every node itself
+ROS_OWNED = ("use_sim_time", "start_type_description_service")
+ROS_OWNED_PREFIXES = ("qos_overrides.",)
 
 
 class ParameterError(ValueError):
@@ -82,6 +89,29 @@ def declare_and_read(node, table: list[Param]) -> dict:
             raise ParameterError(f"parameter '{p.name}': {exc}") from None
         values[p.name] = check(p, value)
     return values
+
+
+def unknown_parameters(given: Iterable[str], known: Iterable[str]) -> list[str]:
+    """One line per name in `given` (a params file's or the command line's) that is neither in
+    `known` nor one rclpy declares itself, naming the closest known one when there is a close
+    one: ROS ignores such a name without a word, so a typo would silently leave the default."""
+    known = sorted(set(known))
+    lines = []
+    for name in sorted(set(given)):
+        if name in known or name in ROS_OWNED or name.startswith(ROS_OWNED_PREFIXES):
+            continue
+        close = difflib.get_close_matches(name, known, n=1)
+        lines.append(f"'{name}' is not a parameter of sgreg's nodes: ignored"
+                     + (f" (did you mean '{close[0]}'?)" if close else ""))
+    return lines
+
+
+def node_parameter_names() -> set[str]:
+    """Every parameter of the agent and registration nodes: one params file serves both."""
+    from .agent_node import PARAMS as AGENT
+    from .registration_node import PARAMS as REGISTRATION
+
+    return {p.name for p in AGENT + REGISTRATION}
 
 
 def accept_live_changes(node, table: list[Param], apply) -> None:

@@ -76,7 +76,8 @@ def _check_before_start(args) -> None:
         for path in (weights, weights.with_suffix(".json")):
             if not path.is_file():
                 raise ValueError(f"model weights need {path} (--weights {args.weights})")
-    check_params_file(args.params_file)
+    for line in check_params_file(args.params_file):
+        print(f"sgreg agents: warning: --params-file {args.params_file}: {line}", file=sys.stderr)
     if args.keystore:
         keystore = Keystore(args.keystore)
         for name in args.names:

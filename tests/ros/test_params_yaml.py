@@ -97,3 +97,40 @@ def test_sgreg_agents_refuses_what_its_nodes_could_not_use_before_starting_them(
         assert main(["agents", "--names", "a", "b", *extra]) == 2, extra
         err = capsys.readouterr().err
         assert err.startswith("sgreg agents: ") and words in err and err.count("\n") == 1, err
+
+
+def test_a_params_file_is_read_before_any_node_starts(tmp_path, capsys, monkeypatch):
+    """Names no node has are warned about (a typo would silently leave the default); a file
+    that is not a ROS parameter file is refused in one line."""
+    from sgreg_cli import processes
+    from sgreg_cli.main import main
+    from sgreg_ros.params import unknown_parameters
+
+    known = {p.name for p in AGENT + REGISTRATION}
+    assert unknown_parameters(["agree_m", "use_sim_time", "qos_overrides./tf.publisher.depth"], known) == []
+    assert unknown_parameters(["agre_m", "zzz"], known) == [
+        "'agre_m' is not a parameter of sgreg's nodes: ignored (did you mean 'agree_m'?)",
+        "'zzz' is not a parameter of sgreg's nodes: ignored"]
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("/**:\n  ros__parameters:\n    agre_m: 0.4\n    qos_overrides:\n      /tf:\n"
+                    "        publisher:\n          depth: 10\n")
+    assert processes.check_params_file(YAML) == []
+    assert processes.check_params_file(typo) == [unknown_parameters(["agre_m"], known)[0]]
+
+    class Started(Exception):
+        pass
+
+    def started(*args, **kwargs):
+        raise Started
+
+    monkeypatch.setattr(processes, "start_agents", started)
+    with pytest.raises(Started):      # a warning, and the nodes start
+        main(["agents", "--names", "a", "--params-file", str(typo)])
+    assert capsys.readouterr().err == (f"sgreg agents: warning: --params-file {typo}: 'agre_m' is not a "
+                                       "parameter of sgreg's nodes: ignored (did you mean 'agree_m'?)\n")
+    for text, words in (("/**:\n  ros__parameters:\n    a: [1, 2\n", "not YAML (expected ',' or ']'"),
+                        ("agree_m: 0.4\n", "no 'ros__parameters' mapping")):
+        typo.write_text(text)
+        assert main(["agents", "--names", "a", "--params-file", str(typo)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"sgreg agents: --params-file {typo}: {words}") and err.count("\n") == 1, err

@@ -290,3 +290,23 @@ def test_without_a_model_the_node_stays_up_and_reports_error(ros, tmp_path):
         out, _ = p.communicate(timeout=30)
         w.close()
     assert p.returncode == 0 and "Traceback" not in out
+
+
+def test_a_parameter_the_nodes_do_not_have_is_named_in_a_warning(ros, tmp_path):
+    """ROS ignores an undeclared parameter without a word, so a typo in a params file would
+    silently leave the default: the node names it (and the closest real one) and runs on."""
+    params = tmp_path / "p.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    agree_mm: 0.4\n    coarse_rate_hz: 2.0\n"
+                      "    use_sim_time: false\n")
+    w = Watcher([])
+    p = _node(["registration", "--ros-args", "-r", "__ns:=/u", "--params-file", str(params)])
+    try:
+        assert w.spin_until(lambda: w.node.count_subscribers("/u/mapping/instances") >= 1, 90), p.poll()
+    finally:
+        os.killpg(p.pid, signal.SIGINT)
+        out, _ = p.communicate(timeout=30)
+        w.close()
+    assert p.returncode == 0, out[-2000:]
+    warned = [line for line in out.splitlines() if "is not a parameter" in line]
+    # coarse_rate_hz is the agent node's (one file serves both), use_sim_time rclpy's own
+    assert len(warned) == 1 and "'agree_mm'" in warned[0] and "did you mean 'agree_m'" in warned[0], out[-2000:]
