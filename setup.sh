@@ -106,17 +106,21 @@ fi
 # pip does not install setup.py's data_files, so write them into the venv prefix here.
 index="$VENV/share/ament_index/resource_index/packages"
 mkdir -p "$index" "$VENV/lib/sgreg_ros"
-for d in config launch rviz foxglove; do mkdir -p "$VENV/share/sgreg_ros/$d"; done
+for d in config config/profiles launch rviz foxglove; do mkdir -p "$VENV/share/sgreg_ros/$d"; done
 : > "$index/sgreg_ros"
 cp "$ROOT/package.xml" "$VENV/share/sgreg_ros/package.xml"
 cp "$ROOT"/config/*.yaml "$VENV/share/sgreg_ros/config/"
+cp "$ROOT"/config/profiles/*.yaml "$VENV/share/sgreg_ros/config/profiles/"
 cp "$ROOT"/launch/*.py "$VENV/share/sgreg_ros/launch/"
 cp "$ROOT"/rviz/*.rviz "$VENV/share/sgreg_ros/rviz/"
 cp "$ROOT"/foxglove/*.json "$VENV/share/sgreg_ros/foxglove/"
-for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))"); do
+# the nodes under their short names, and the sgreg tool (`ros2 run sgreg_ros sgreg replay ...`,
+# as colcon installs it through setup.cfg's install_scripts)
+for exe in $("$VENV/bin/python" -c "from sgreg_ros import EXECUTABLES; print(' '.join(EXECUTABLES))") sgreg; do
+  target="$VENV/bin/sgreg-$exe"; [ "$exe" = sgreg ] && target="$VENV/bin/sgreg"
   cat > "$VENV/lib/sgreg_ros/$exe" <<SH
 #!/bin/sh
-exec "$VENV/bin/sgreg-$exe" "\$@"
+exec "$target" "\$@"
 SH
   chmod +x "$VENV/lib/sgreg_ros/$exe"
 done

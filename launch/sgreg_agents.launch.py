@@ -27,7 +27,9 @@ def generate_launch_description():
     default_params = os.path.join(get_package_share_directory("sgreg_ros"), "config", "sgreg.yaml")
     return LaunchDescription([
         DeclareLaunchArgument("agents", default_value="a,b", description="comma-separated agent ids"),
-        DeclareLaunchArgument("params_file", default_value=default_params),
+        DeclareLaunchArgument("params_file", default_value=default_params,
+                              description="parameter file of every node (default: the shipped "
+                                          "config/sgreg.yaml; a profile: config/profiles/*.yaml)"),
         DeclareLaunchArgument("weights_path", default_value="", description="empty: the shipped model"),
         OpaqueFunction(function=_nodes),
     ])

@@ -353,7 +353,8 @@ def result_from_msg(msg: RegistrationResult) -> Result:
 def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,
                     stamp_ns: int) -> DiagnosticArray:
     """One DiagnosticStatus per node (name: the node's full name, hardware_id: the agent id), with
-    every counter as a key/value: rqt_robot_monitor and Foxglove display it."""
+    every counter that has counted as a key/value (rqt_robot_monitor and Foxglove display
+    them); one still at 0 is left out."""
     arr = DiagnosticArray()
     arr.header.stamp = ns_to_stamp(stamp_ns)
     status = DiagnosticStatus(level=bytes([level]), name=name, message=message, hardware_id=agent_id)

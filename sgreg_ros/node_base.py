@@ -32,6 +32,7 @@ class SgregNode(Node):
         second publisher means a second agent of this name (diagnostics say ERROR)."""
         super().__init__(executable)   # the node is called what it is run as
         self.table = table
+        self.in_effect(getattr(self, "_parameter_overrides", {}))
         self.p = declare_and_read(self, table)
         # rclpy keeps what a params file or -p gave this node, declared or not
         for line in unknown_parameters(getattr(self, "_parameter_overrides", {}), node_parameter_names()):
@@ -47,6 +48,11 @@ class SgregNode(Node):
         self._logged: dict[str, tuple[float, int]] = {}   # refusal kind -> (last logged, suppressed)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
         self.create_timer(1.0, self.publish_diagnostics)
+
+    def in_effect(self, overrides: dict) -> None:
+        """Change what a params file or -p gave (name -> rclpy Parameter) into what the node
+        will use, before the parameters are declared: `ros2 param get` then reads the value in
+        effect."""
 
     def topic(self, suffix: str) -> str:
         """/<agent>/<suffix>: the agent id, not the namespace, names the topics (they agree,

@@ -69,12 +69,21 @@ def check(p: Param, value):
 
 def declare_and_read(node, table: list[Param]) -> dict:
     """Declare every parameter of `table` on `node` and return {name: value}, validated."""
+    from rclpy.parameter import Parameter
+
     values = {}
+    overrides = getattr(node, "_parameter_overrides", {})   # what a params file or -p gave
     for p in table:
+        given = overrides.get(p.name)
+        if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
+            # "view_period_s: 0" in a params file: declared as the double it is, so that
+            # `ros2 param describe` and `dump` show a double, not an integer
+            overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
         desc = ParameterDescriptor(description=p.description)
         if isinstance(p.default, float):
-            # "-p view_period_s:=0" or "ros2 param set ... coarse_rate_hz 2" give an integer:
-            # taken (check() makes it a float and checks the range) instead of a type error
+            # a value of another type is refused by check() with the parameter's name, not by
+            # rclpy's nameless type error; an integer is made the double it means (above, and
+            # accept_live_changes for `ros2 param set ... coarse_rate_hz 2`)
             desc.dynamic_typing = True
         if p.low is not None and isinstance(p.default, float):
             desc.floating_point_range = [FloatingPointRange(from_value=float(p.low), to_value=float(p.high), step=0.0)]
@@ -117,9 +126,10 @@ def node_parameter_names() -> set[str]:
 def accept_live_changes(node, table: list[Param], apply) -> None:
     """Check parameters set at run time against `table` and hand the valid ones to
     apply({name: value}); an invalid value is refused with its reason (rclpy refuses read-only
-    ones before this runs). Register after declare_and_read: rclpy runs these callbacks for
-    declarations too."""
+    ones before this runs), an integer for a float parameter taken as the double it means.
+    Register after declare_and_read: rclpy runs these callbacks for declarations too."""
     from rcl_interfaces.msg import SetParametersResult
+    from rclpy.parameter import Parameter
 
     by_name = {p.name: p for p in table}
 
@@ -139,6 +149,13 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
             apply(changes)
         return SetParametersResult(successful=True)
 
+    def as_doubles(params):
+        # "ros2 param set ... coarse_rate_hz 2" sends an integer: stored as the double it means
+        return [Parameter(item.name, Parameter.Type.DOUBLE, float(item.value))
+                if item.name in floats and item.type_ == Parameter.Type.INTEGER else item for item in params]
+
+    floats = {p.name for p in table if isinstance(p.default, float)}
+    node.add_pre_set_parameters_callback(as_doubles)
     node.add_on_set_parameters_callback(on_set)
 
 

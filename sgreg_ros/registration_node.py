@@ -69,6 +69,11 @@ PARAMS = params_of(RegistrationNodeConfig, PeersConfig, AgentConfig, GraphConfig
 COARSE_TOPIC = re.compile(rf"^/({AGENT_ID.pattern})/sgreg/coarse$")
 
 
+# unsigned, anyone could echo this agent's candidate back as the peer's verified link and skip
+# the two-estimate rule: the peer's word counts only when signed
+CONFIRM_UNSIGNED = "confirm_with_peer off: a peer's results count as evidence only when signed (no keystore)"
+
+
 class RegistrationNode(SgregNode):
     def __init__(self):
         super().__init__("registration", PARAMS, "sgreg/registration")
@@ -86,12 +91,9 @@ class RegistrationNode(SgregNode):
             pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
             peers_cfg = PeersConfig(**pick(PeersConfig, p),
                                     pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
-            if self.auth.keystore is None and peers_cfg.confirm_with_peer:
-                # unsigned, anyone could echo this agent's candidate back as the peer's verified
-                # link and skip the two-estimate rule: the peer's word counts only when signed
+            if self.auth.keystore is None and peers_cfg.confirm_with_peer:   # a keystore that did not load
                 peers_cfg = replace(peers_cfg, confirm_with_peer=False)
-                self.get_logger().warning("confirm_with_peer off: a peer's results count as evidence "
-                                          "only when signed (no keystore)")
+                self.get_logger().warning(CONFIRM_UNSIGNED)
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
@@ -122,6 +124,15 @@ class RegistrationNode(SgregNode):
             self.get_logger().info(f"registration for '{self.name}' up, peers: "
                                    f"{self.fixed_peers or 'discovered'}, weights {self.agent.weights_id}")
         self.accept_live_parameters()
+
+    def in_effect(self, overrides: dict) -> None:
+        """Without a keystore the peer's word is off (CONFIRM_UNSIGNED), and the parameter says so."""
+        from rclpy.parameter import Parameter
+
+        keystore, confirm = overrides.get("keystore"), overrides.get("confirm_with_peer")
+        if not (keystore and keystore.value) and (confirm.value if confirm else PeersConfig.confirm_with_peer):
+            overrides["confirm_with_peer"] = Parameter("confirm_with_peer", Parameter.Type.BOOL, False)
+            self.get_logger().warning(CONFIRM_UNSIGNED)
 
     def peer_list(self, peers: list) -> list[str]:
         """The fixed peers ([] or [''] to discover them), or ParameterError: each must be an

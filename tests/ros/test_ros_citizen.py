@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import rclpy
-from rclpy.parameter import Parameter
+from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
 from sgreg_msgs.msg import CoarseGraph, DenseRequest, RegistrationResult
@@ -38,7 +38,8 @@ def ros():
 def agent_a(ros, tmp_path):
     """Both nodes of agent a (quick map timeout), a watcher, and a's map."""
     maps, _ = agent_maps(["a", "b"], seed=3)
-    procs = processes.start_agents(["a"], overrides={**FAST, "map_timeout_s": 3.0, "quiet_after_s": 3.0}, log_dir=tmp_path)
+    # quiet_after_s given as an integer, as "-p quiet_after_s:=3" gives it
+    procs = processes.start_agents(["a"], overrides={**FAST, "map_timeout_s": 3.0, "quiet_after_s": 3}, log_dir=tmp_path)
     w = Watcher(["a"])
     yield procs, w, maps["a"]
     processes.stop(procs)
@@ -89,6 +90,14 @@ def test_nodes_are_named_as_run_and_report_on_diagnostics(agent_a):
     assert not alive(procs)
 
 
+def _get(w, node, *names):
+    client = AsyncParameterClient(w.node, node)
+    assert client.wait_for_services(timeout_sec=30), f"no parameter services on {node}"
+    future = client.get_parameters(list(names))
+    assert w.spin_until(future.done, 10)
+    return [(Parameter.Type(v.type), parameter_value_to_python(v)) for v in future.result().values]
+
+
 def test_parameters_take_effect_or_are_refused(agent_a):
     procs, w, imap = agent_a
     assert w.wait_ready(["a"]), f"dead: {alive(procs)}"
@@ -111,6 +120,11 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     assert ok.successful
     [ok] = _set(w, "/a/agent", heartbeat_period_s=1)     # an integer for a float is taken
     assert ok.successful, ok.reason
+    # ... and kept as the double it means, as one given at start (describe and dump say double)
+    assert _get(w, "/a/agent", "heartbeat_period_s", "quiet_after_s") == [(Parameter.Type.DOUBLE, 1.0),
+                                                                         (Parameter.Type.DOUBLE, 3.0)]
+    # without a keystore the peer's word is off, and the parameter reads what is in effect
+    assert _get(w, "/a/registration", "confirm_with_peer") == [(Parameter.Type.BOOL, False)]
     w.spin_until(lambda: False, 1.0)
     coarse.clear()
     w.spin_until(lambda: False, 8.0)
@@ -310,3 +324,12 @@ def test_a_parameter_the_nodes_do_not_have_is_named_in_a_warning(ros, tmp_path):
     warned = [line for line in out.splitlines() if "is not a parameter" in line]
     # coarse_rate_hz is the agent node's (one file serves both), use_sim_time rclpy's own
     assert len(warned) == 1 and "'agree_mm'" in warned[0] and "did you mean 'agree_m'" in warned[0], out[-2000:]
+
+
+@pytest.mark.parametrize("exe", ["agent", "registration"])
+def test_help_says_how_to_run_the_node_without_starting_it(exe):
+    res = subprocess.run([sys.executable, "-m", "sgreg_ros", exe, "--help"], capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0 and not res.stderr, res.stderr
+    assert res.stdout.startswith(f"usage: ros2 run sgreg_ros {exe} --ros-args -r __ns:=/<agent>")
+    assert f"ros2 param describe /<agent>/{exe} NAME" in res.stdout

@@ -1,0 +1,50 @@
+"""The package as ROS finds it: what `ros2 run sgreg_ros <exe>` and `ros2 launch sgreg_ros ...`
+resolve in the prefix on AMENT_PREFIX_PATH (the venv, written by setup.sh as colcon would
+install it), and package.xml's dependencies against the requirements."""
+import os
+import re
+import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+
+from sgreg_ros import EXECUTABLES
+
+ROOT = Path(__file__).resolve().parents[2]
+# requirement -> its rosdep key; the others have none and must be named in package.xml's comment
+ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "PyYAML": "python3-yaml",
+               "psutil": "python3-psutil", "torch": "python3-torch", "tqdm": "python3-tqdm",
+               "matplotlib": "python3-matplotlib", "rosbags": "python3-rosbags-pip",
+               "mcap-ros2-support": "mcap-ros2-support", "mcap": "mcap-ros2-support"}
+TEST_TOOLS = {"pytest", "pytest-timeout"}
+
+
+def test_ros2_run_and_launch_find_what_the_repository_ships():
+    prefix = Path(get_package_prefix("sgreg_ros"))
+    share = Path(get_package_share_directory("sgreg_ros"))
+    for exe in (*EXECUTABLES, "sgreg"):
+        path = prefix / "lib" / "sgreg_ros" / exe
+        assert path.is_file() and os.access(path, os.X_OK), path
+        res = subprocess.run([str(path), "--help"], capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0 and res.stdout.startswith("usage:"), (exe, res.stderr[-500:])
+    shipped = ["package.xml", "config/sgreg.yaml", *(f"config/profiles/{p.name}" for p in
+                                                      (ROOT / "config" / "profiles").glob("*.yaml")),
+               *(f"launch/{p.name}" for p in (ROOT / "launch").glob("*.py"))]
+    assert len(shipped) >= 5
+    for name in shipped:
+        assert (share / name).read_bytes() == (ROOT / name).read_bytes(), f"{share / name} is not the repository's"
+
+
+def test_package_xml_declares_every_python_requirement():
+    text = (ROOT / "package.xml").read_text()
+    root = ET.fromstring(text)
+    declared = {e.text for e in root.iter() if e.tag in ("depend", "exec_depend")}
+    comment = " ".join(re.findall(r"<!--(.*?)-->", text, re.S))
+    for req in ("core.txt", "torch.txt"):
+        for line in (ROOT / "requirements" / req).read_text().splitlines():
+            name = re.split(r"[=<>~ ]", line.split("#")[0].strip(), maxsplit=1)[0]
+            if not name or name in TEST_TOOLS:
+                continue
+            assert ROSDEP_KEYS.get(name) in declared or name in comment, \
+                f"package.xml neither depends on {name} (rosdep key) nor names it among those without one"
