@@ -12,8 +12,23 @@ from pathlib import Path
 
 from sgreg_ros import EXECUTABLES
 
-_REPO_PARAMS = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
-DEFAULT_PARAMS = _REPO_PARAMS if _REPO_PARAMS.exists() else None   # the repository's config/
+def _shipped_params() -> Path | None:
+    """config/sgreg.yaml of the repository, else of the installed package (colcon), else None."""
+    repo = Path(__file__).resolve().parent.parent / "config" / "sgreg.yaml"
+    if repo.exists():
+        return repo
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:
+        return None
+    try:
+        installed = Path(get_package_share_directory("sgreg_ros")) / "config" / "sgreg.yaml"
+    except PackageNotFoundError:
+        return None
+    return installed if installed.exists() else None
+
+
+DEFAULT_PARAMS = _shipped_params()
 
 
 @dataclass
@@ -27,60 +42,19 @@ class NodeProcess:
 def check_params_file(path: str | Path | None) -> list[str]:
     """ValueError in one line when the nodes could not read `path` as a ROS parameter file
     (else they fail only once started, each in its own log); else one warning line per name in
-    it that is not a parameter of the nodes (sgreg_ros.params.unknown_parameters), checked
-    against the shipped file, which holds every one."""
+    it for sgreg's nodes that they do not have (sgreg_ros.params.unknown_parameters), checked
+    against the shipped file, which holds every one (a test keeps it so)."""
     if not path:
         return []
+    from sgreg_ros.params import parameter_file_names, unknown_parameters
+
     try:
-        given = parameter_names(path)
+        given = parameter_file_names(path)
     except OSError as exc:
         raise ValueError(f"cannot read --params-file {path}: {exc.strerror or exc}") from None
     except ValueError as exc:
         raise ValueError(f"--params-file {path}: {exc}") from None
-    if DEFAULT_PARAMS is None:
-        return []
-    from sgreg_ros.params import unknown_parameters
-
-    return unknown_parameters(given, parameter_names(DEFAULT_PARAMS))
-
-
-def parameter_names(path: str | Path) -> set[str]:
-    """The parameter names of a ROS parameter file, for any node (nested mappings under
-    ros__parameters named with dots, as ROS does); ValueError when it is not one."""
-    import yaml
-
-    try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except UnicodeDecodeError:
-        raise ValueError("not text") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"not YAML ({getattr(exc, 'problem', None) or 'unreadable'}{where})") from None
-    names: set[str] = set()
-
-    def flat(params: dict, prefix: str) -> None:
-        for key, value in params.items():
-            if isinstance(value, dict):
-                flat(value, f"{prefix}{key}.")
-            else:
-                names.add(f"{prefix}{key}")
-
-    def walk(node, found: list) -> None:
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if key == "ros__parameters" and isinstance(value, dict):
-                    flat(value, "")
-                    found.append(key)
-                else:
-                    walk(value, found)
-
-    found: list = []
-    walk(doc, found)
-    if not found:
-        raise ValueError("no 'ros__parameters' mapping in it (a ROS parameter file: "
-                         "/**: {ros__parameters: {name: value}})")
-    return names
+    return [] if DEFAULT_PARAMS is None else unknown_parameters(given, parameter_file_names(DEFAULT_PARAMS))
 
 
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,

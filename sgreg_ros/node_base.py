@@ -16,7 +16,7 @@ from sgreg_core.runtime.health import Health, HealthConfig
 
 from . import convert, qos
 from .params import (Param, accept_live_changes, agent_name_from, declare_and_read, node_parameter_names,
-                     pick, unknown_parameters)
+                     overrides_of, pick, unknown_parameters)
 from .signing import MessageAuth
 
 
@@ -32,10 +32,9 @@ class SgregNode(Node):
         second publisher means a second agent of this name (diagnostics say ERROR)."""
         super().__init__(executable)   # the node is called what it is run as
         self.table = table
-        self.in_effect(getattr(self, "_parameter_overrides", {}))
+        self.in_effect(overrides_of(self))
         self.p = declare_and_read(self, table)
-        # rclpy keeps what a params file or -p gave this node, declared or not
-        for line in unknown_parameters(getattr(self, "_parameter_overrides", {}), node_parameter_names()):
+        for line in unknown_parameters(overrides_of(self), node_parameter_names()):
             self.get_logger().warning(line)
         self.name = agent_name_from(self, self.p["agent_name"])
         self.run_clock = RunClock()

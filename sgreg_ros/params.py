@@ -72,7 +72,7 @@ def declare_and_read(node, table: list[Param]) -> dict:
     from rclpy.parameter import Parameter
 
     values = {}
-    overrides = getattr(node, "_parameter_overrides", {})   # what a params file or -p gave
+    overrides = overrides_of(node)
     for p in table:
         given = overrides.get(p.name)
         if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
@@ -115,6 +115,59 @@ def unknown_parameters(given: Iterable[str], known: Iterable[str]) -> list[str]:
     return lines
 
 
+def parameter_file_names(path) -> set[str]:
+    """The parameter names a ROS parameter file gives sgreg's nodes (nested mappings under
+    ros__parameters named with dots, as ROS does): those of its blocks for any node, `agent` or
+    `registration` (a file shared with other nodes may name theirs); ValueError when the file
+    is not a parameter file."""
+    from pathlib import Path
+
+    import yaml
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except UnicodeDecodeError:
+        raise ValueError("not text") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"not YAML ({getattr(exc, 'problem', None) or 'unreadable'}{where})") from None
+    blocks: list[tuple[str, dict]] = []      # (node key, its ros__parameters)
+
+    def walk(node, key: str) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k == "ros__parameters" and isinstance(v, dict):
+                    blocks.append((key, v))
+                else:
+                    walk(v, str(k))
+
+    walk(doc, "")
+    if not blocks:
+        raise ValueError("no 'ros__parameters' mapping in it (a ROS parameter file: "
+                         "/**: {ros__parameters: {name: value}})")
+    names: set[str] = set()
+
+    def flat(params: dict, prefix: str) -> None:
+        for k, v in params.items():
+            if isinstance(v, dict):
+                flat(v, f"{prefix}{k}.")
+            else:
+                names.add(f"{prefix}{k}")
+
+    for key, params in blocks:
+        if key.rstrip("/").rsplit("/", 1)[-1] in ("**", "*", "agent", "registration"):
+            flat(params, "")
+    return names
+
+
+def overrides_of(node) -> dict:
+    """name -> rclpy Parameter: what a params file or -p gave the node, declared or not. rclpy
+    (Jazzy) keeps them in this attribute and has no public accessor; read directly, so that a
+    change of rclpy fails loudly in the node tests."""
+    return node._parameter_overrides
+
+
 def node_parameter_names() -> set[str]:
     """Every parameter of the agent and registration nodes: one params file serves both."""
     from .agent_node import PARAMS as AGENT
@@ -149,12 +202,13 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
             apply(changes)
         return SetParametersResult(successful=True)
 
+    floats = {p.name for p in table if isinstance(p.default, float)}
+
     def as_doubles(params):
         # "ros2 param set ... coarse_rate_hz 2" sends an integer: stored as the double it means
         return [Parameter(item.name, Parameter.Type.DOUBLE, float(item.value))
                 if item.name in floats and item.type_ == Parameter.Type.INTEGER else item for item in params]
 
-    floats = {p.name for p in table if isinstance(p.default, float)}
     node.add_pre_set_parameters_callback(as_doubles)
     node.add_on_set_parameters_callback(on_set)
 

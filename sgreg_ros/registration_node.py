@@ -91,9 +91,6 @@ class RegistrationNode(SgregNode):
             pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
             peers_cfg = PeersConfig(**pick(PeersConfig, p),
                                     pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
-            if self.auth.keystore is None and peers_cfg.confirm_with_peer:   # a keystore that did not load
-                peers_cfg = replace(peers_cfg, confirm_with_peer=False)
-                self.get_logger().warning(CONFIRM_UNSIGNED)
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
@@ -130,7 +127,8 @@ class RegistrationNode(SgregNode):
         from rclpy.parameter import Parameter
 
         keystore, confirm = overrides.get("keystore"), overrides.get("confirm_with_peer")
-        if not (keystore and keystore.value) and (confirm.value if confirm else PeersConfig.confirm_with_peer):
+        wanted = PeersConfig.confirm_with_peer if confirm is None else confirm.value is True   # else check() says why
+        if not (keystore and keystore.value) and wanted:
             overrides["confirm_with_peer"] = Parameter("confirm_with_peer", Parameter.Type.BOOL, False)
             self.get_logger().warning(CONFIRM_UNSIGNED)
 

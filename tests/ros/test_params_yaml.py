@@ -115,6 +115,10 @@ def test_a_params_file_is_read_before_any_node_starts(tmp_path, capsys, monkeypa
     typo.write_text("/**:\n  ros__parameters:\n    agre_m: 0.4\n    qos_overrides:\n      /tf:\n"
                     "        publisher:\n          depth: 10\n")
     assert processes.check_params_file(YAML) == []
+    shared = tmp_path / "shared.yaml"     # blocks of other nodes are theirs; sgreg's are checked
+    shared.write_text("/mapper:\n  ros__parameters:\n    voxel: 1\n"
+                      "a:\n  registration:\n    ros__parameters:\n      agre_m: 0.4\n")
+    assert processes.check_params_file(shared) == [unknown_parameters(["agre_m"], known)[0]]
     assert processes.check_params_file(typo) == [unknown_parameters(["agre_m"], known)[0]]
 
     class Started(Exception):
