@@ -12,6 +12,8 @@ Public API:
                                           is writable, or OSError with a one-line reason
     output_file(path) -> Path             the same for the folder of an output file, which must
                                           not be a folder itself
+    weights_files(path) -> (Path, Path)   a model's .safetensors and its .json, or
+                                          FileNotFoundError naming both
 """
 from __future__ import annotations
 
@@ -57,3 +59,13 @@ def output_file(path: str | Path) -> Path:
         raise OSError(f"{p} is a folder; give a file name")
     make_folder(p.parent)
     return p
+
+
+def weights_files(path: str | Path) -> tuple[Path, Path]:
+    """The two files of model weights (the .safetensors and the .json of its config), checked
+    without importing torch (`sgreg agents` checks them before starting any node)."""
+    weights = Path(path)
+    info = weights.with_suffix(".json")
+    if not (weights.is_file() and info.is_file()):
+        raise FileNotFoundError(f"model weights need {weights} and {info}")
+    return weights, info

@@ -67,18 +67,29 @@ def check(p: Param, value):
     return float(value) if isinstance(p.default, float) else value
 
 
-def declare_and_read(node, table: list[Param]) -> dict:
-    """Declare every parameter of `table` on `node` and return {name: value}, validated."""
+def _float_names(table: list[Param]) -> set[str]:
+    return {p.name for p in table if isinstance(p.default, float)}
+
+
+def _as_double(item, floats: set[str]):
+    """The rclpy Parameter `item`, a double when it gives an integer to a float parameter."""
     from rclpy.parameter import Parameter
 
+    if item.name in floats and item.type_ == Parameter.Type.INTEGER:
+        return Parameter(item.name, Parameter.Type.DOUBLE, float(item.value))
+    return item
+
+
+def declare_and_read(node, table: list[Param]) -> dict:
+    """Declare every parameter of `table` on `node` and return {name: value}, validated."""
     values = {}
     overrides = overrides_of(node)
+    floats = _float_names(table)
     for p in table:
-        given = overrides.get(p.name)
-        if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
+        if p.name in overrides:
             # "view_period_s: 0" in a params file: declared as the double it is, so that
             # `ros2 param describe` and `dump` show a double, not an integer
-            overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
+            overrides[p.name] = _as_double(overrides[p.name], floats)
         desc = ParameterDescriptor(description=p.description)
         if isinstance(p.default, float):
             # a value of another type is refused by check() with the parameter's name, not by
@@ -182,7 +193,6 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
     ones before this runs), an integer for a float parameter taken as the double it means.
     Register after declare_and_read: rclpy runs these callbacks for declarations too."""
     from rcl_interfaces.msg import SetParametersResult
-    from rclpy.parameter import Parameter
 
     by_name = {p.name: p for p in table}
 
@@ -202,14 +212,9 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
             apply(changes)
         return SetParametersResult(successful=True)
 
-    floats = {p.name for p in table if isinstance(p.default, float)}
-
-    def as_doubles(params):
-        # "ros2 param set ... coarse_rate_hz 2" sends an integer: stored as the double it means
-        return [Parameter(item.name, Parameter.Type.DOUBLE, float(item.value))
-                if item.name in floats and item.type_ == Parameter.Type.INTEGER else item for item in params]
-
-    node.add_pre_set_parameters_callback(as_doubles)
+    floats = _float_names(table)
+    # "ros2 param set ... coarse_rate_hz 2" sends an integer: stored as the double it means
+    node.add_pre_set_parameters_callback(lambda params: [_as_double(item, floats) for item in params])
     node.add_on_set_parameters_callback(on_set)
 
 

@@ -64,18 +64,13 @@ def _check_before_start(args) -> None:
     """What the nodes would otherwise find only once started (a node without its model or its
     key stays up and reports ERROR on /diagnostics, as a robot's node should, so `agents`
     would run on with nodes that do nothing): OSError, ValueError or KeystoreError in one line."""
-    from pathlib import Path
-
-    from sgreg_core.paths import make_folder
+    from sgreg_core.paths import make_folder, weights_files
     from sgreg_core.runtime.auth import Keystore
 
     from ..processes import check_params_file
 
     if args.weights:
-        weights = Path(args.weights)
-        for path in (weights, weights.with_suffix(".json")):
-            if not path.is_file():
-                raise ValueError(f"model weights need {path} (--weights {args.weights})")
+        weights_files(args.weights)
     for line in check_params_file(args.params_file):
         print(f"sgreg agents: warning: --params-file {args.params_file}: {line}", file=sys.stderr)
     if args.keystore:

@@ -35,6 +35,7 @@ from torch import nn
 
 from ..types import SceneGraph
 from ..config import from_dict, to_dict
+from ..paths import weights_files
 from .matching import MatchConfig, NodeMatcher, PointMatcher
 from .node_encoder import NodeEncoder, NodeEncoderConfig
 from .shape import PointEncoder, ShapeConfig, ShapeEncoder, sample_node_points
@@ -309,10 +310,7 @@ def load_model(path: str | Path | None = None, text_encoder: TextEncoder | None 
     """Model in eval mode from a .safetensors file and the ModelConfig in its .json."""
     from safetensors.torch import load_file
 
-    path = Path(path) if path else DEFAULT_WEIGHTS
-    info_path = path.with_suffix(".json")
-    if not path.exists() or not info_path.exists():
-        raise FileNotFoundError(f"model weights need {path} and {info_path}")
+    path, info_path = weights_files(path or DEFAULT_WEIGHTS)
     try:
         info = json.loads(info_path.read_text())
         model = SGRegModel(ModelConfig.from_dict(info.get("config")), text_encoder=text_encoder)
