@@ -28,7 +28,6 @@ setup(
     ],
     install_requires=["setuptools"],
     zip_safe=False,
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "sgreg = sgreg_cli.main:main",

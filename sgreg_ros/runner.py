@@ -63,19 +63,27 @@ def missing_params_files(args: list[str]) -> list[str]:
 def run_node(load_node_class, args=None) -> int:
     """load_node_class() imports the node's module (torch, the model) and returns its class."""
     stop = install_stop()
-    from .params import ParameterError
-
     missing = missing_params_files(sys.argv if args is None else args)
     if missing:
         print(f"[sgreg] refusing to start: parameter file {missing[0]!r} cannot be read",
               file=sys.stderr, flush=True)
         return 2
-    node_class = load_node_class()
-    import rclpy
-    import torch
-    from rclpy.exceptions import NameValidationException
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
+    try:
+        from .params import ParameterError
+
+        node_class = load_node_class()
+        import rclpy
+        import torch
+        from rclpy.exceptions import NameValidationException
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+    except ModuleNotFoundError as exc:
+        # `ros2 run` starts lib/sgreg_ros/<exe> with the first python3 on PATH: in a shell where
+        # the environment sgreg was installed into is not active, that is another Python
+        print(f"[sgreg] refusing to start: {exc} for {sys.executable}; run the node from the "
+              "Python environment sgreg was installed into (source its bin/activate in this "
+              "shell, then install/setup.bash)", file=sys.stderr, flush=True)
+        return 2
 
     # One torch thread per node: the graphs are small, and each robot runs two nodes; several
     # threads per process only fight over the cores (measured several times slower under load).

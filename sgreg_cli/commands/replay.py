@@ -1,4 +1,4 @@
-"""sgreg replay BAG --json OUT [--png OUT]: replay a bag of two or more agents through real nodes
+"""sgreg replay BAG [--json OUT] [--png OUT]: replay a bag of two or more agents through real nodes
 (separate processes over DDS) and score every published estimate, and the merged frame the
 agents publish on /tf, against the bag's ground truth. --png also draws the merged map
 (<png>_merged.png: every agent's map, top-down, placed by its merged pose)."""
@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 NAME = "replay"
@@ -14,7 +15,7 @@ HELP = "replay a multi-agent bag through real nodes and score every estimate and
 
 def add_arguments(p):
     p.add_argument("bag", help="rosbag2 directory made by sgreg make-bag (with ground_truth.json)")
-    p.add_argument("--json", required=True, help="write the report here")
+    p.add_argument("--json", help="write the report here (default: the report is only printed)")
     p.add_argument("--png", help="plot success, RTE and bandwidth over time (and the merged map "
                                  "beside it, *_merged.png)")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed")
@@ -24,7 +25,8 @@ def add_arguments(p):
                         "leaves that unmeasured)")
     p.add_argument("--weights", help="model weights (.safetensors); default: the shipped model")
     p.add_argument("--params-file", help="ROS parameter YAML for the nodes (default: config/sgreg.yaml)")
-    p.add_argument("--log-dir", help="node logs (default: next to the JSON)")
+    p.add_argument("--log-dir", help="node logs (default: next to the JSON; without --json, a new "
+                                     "temporary folder, named at the end)")
     p.add_argument("--restart", metavar="AGENT@SECONDS",
                    help="kill that agent's nodes that long into the replay and restart them")
 
@@ -48,9 +50,10 @@ def run(args) -> int:
     from sgreg_core.paths import make_folder
     from sgreg_core.plots import figure_path
 
-    out_json = Path(args.json)
+    out_json = Path(args.json) if args.json else None
     try:
-        make_folder(out_json.parent)
+        if out_json is not None:
+            make_folder(out_json.parent)
         if args.png:
             figure_path(args.png)
         gt = ground_truth_of(args.bag)
@@ -65,9 +68,15 @@ def run(args) -> int:
         except ValueError:
             print(f"sgreg replay: --restart wants AGENT@SECONDS, got {args.restart!r}", file=sys.stderr)
             return 2
+    if args.log_dir:
+        log_dir = Path(args.log_dir)
+    elif out_json is not None:
+        log_dir = out_json.parent / (out_json.stem + "_logs")
+    else:
+        log_dir = Path(tempfile.mkdtemp(prefix="sgreg_replay_logs_"))
     cfg = ReplayConfig(rate=args.rate, restart=restart, params_file=args.params_file,
                        overrides={"weights_path": args.weights} if args.weights else {},
-                       log_dir=Path(args.log_dir) if args.log_dir else out_json.parent / (out_json.stem + "_logs"))
+                       log_dir=log_dir)
     if args.tail is not None:
         cfg.tail_s = args.tail
     try:
@@ -85,7 +94,8 @@ def run(args) -> int:
                                                    "overrides": cfg.overrides}, settle_s=cfg.settle_s,
                            merge=merge)
     kb_per_frame = report["kb_per_query_frame"]
-    out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
+    if out_json is not None:
+        out_json.write_text(json.dumps(report, indent=1, default=float) + "\n")
 
     print()
     print(format_table(HEADER, [b.as_row() for b in run_.bandwidth]))
@@ -134,7 +144,8 @@ def run(args) -> int:
         print(f"RTE {rte(r.T, T_gt):.3f} m, RRE {rre(r.T, T_gt):.2f} deg")
     if not last:
         print("\nno verified estimate was published")
-    print(f"\nreport: {out_json}")
+    print(f"\nreport: {out_json}" if out_json is not None else f"\nnode logs: {cfg.log_dir} (--json FILE keeps "
+          "the report)")
     if args.png:
         from sgreg_core.plots.merged import plot_merged_map
         from sgreg_core.plots.replay import plot_replay

@@ -4,6 +4,7 @@ install it), and package.xml's dependencies against the requirements."""
 import os
 import re
 import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -48,3 +49,19 @@ def test_package_xml_declares_every_python_requirement():
                 continue
             assert ROSDEP_KEYS.get(name) in declared or name in without_key, \
                 f"package.xml neither depends on {name} (rosdep key) nor names it among those without one"
+
+
+def test_an_executable_started_by_another_python_says_which_environment_it_needs():
+    """In a colcon install, `ros2 run` starts lib/sgreg_ros/<exe> (executables/<exe>) with the
+    first python3 on PATH; in a shell where the venv sgreg was installed into is not active, a
+    dependency is missing: one line that says what to do, exit 2, no traceback. Here
+    rcl_interfaces is taken away from this Python."""
+    for exe in EXECUTABLES:
+        script = ROOT / "executables" / exe
+        code = ("import sys; sys.modules['rcl_interfaces'] = None; "
+                f"sys.argv = [{str(script)!r}, '--ros-args', '-r', '__ns:=/a']; "
+                f"exec(compile(open({str(script)!r}).read(), {str(script)!r}, 'exec'))")
+        res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        assert res.returncode == 2, (exe, res.stderr[-1000:])
+        assert "refusing to start" in res.stderr and "rcl_interfaces" in res.stderr \
+            and "bin/activate" in res.stderr and "Traceback" not in res.stderr, res.stderr[-1000:]
