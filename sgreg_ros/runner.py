@@ -78,11 +78,15 @@ def run_node(load_node_class, args=None) -> int:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
     except ModuleNotFoundError as exc:
+        if (exc.name or "").partition(".")[0] in ("sgreg_core", "sgreg_ros", "sgreg_cli"):
+            raise     # a module of sgreg's own: a bug or a broken install, not the environment
         # `ros2 run` starts lib/sgreg_ros/<exe> with the first python3 on PATH: in a shell where
         # the environment sgreg was installed into is not active, that is another Python
+        venv = " (this Python is a venv: if it is sgreg's, install requirements/core.txt into it)" \
+            if sys.prefix != sys.base_prefix else ""
         print(f"[sgreg] refusing to start: {exc} for {sys.executable}; run the node from the "
               "Python environment sgreg was installed into (source its bin/activate in this "
-              "shell, then install/setup.bash)", file=sys.stderr, flush=True)
+              f"shell, then install/setup.bash){venv}", file=sys.stderr, flush=True)
         return 2
 
     # One torch thread per node: the graphs are small, and each robot runs two nodes; several

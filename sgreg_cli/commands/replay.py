@@ -5,8 +5,10 @@ agents publish on /tf, against the bag's ground truth. --png also draws the merg
 from __future__ import annotations
 
 import json
+import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 NAME = "replay"
@@ -72,8 +74,8 @@ def run(args) -> int:
         log_dir = Path(args.log_dir)
     elif out_json is not None:
         log_dir = out_json.parent / (out_json.stem + "_logs")
-    else:
-        log_dir = Path(tempfile.mkdtemp(prefix="sgreg_replay_logs_"))
+    else:    # made only when the nodes start (processes.start_agents), so a refusal leaves none
+        log_dir = Path(tempfile.gettempdir()) / f"sgreg_replay_logs_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
     cfg = ReplayConfig(rate=args.rate, restart=restart, params_file=args.params_file,
                        overrides={"weights_path": args.weights} if args.weights else {},
                        log_dir=log_dir)
@@ -82,7 +84,8 @@ def run(args) -> int:
     try:
         run_ = run_replay(args.bag, cfg, log=lambda s: print(f"[replay] {s}", flush=True))
     except (BagError, RuntimeError, ValueError) as exc:
-        print(f"sgreg replay: {exc}", file=sys.stderr)
+        where = f" (node logs: {cfg.log_dir})" if cfg.log_dir.is_dir() else ""
+        print(f"sgreg replay: {exc}{where}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
     frame = MergeConfig().merged_frame
@@ -144,8 +147,10 @@ def run(args) -> int:
         print(f"RTE {rte(r.T, T_gt):.3f} m, RRE {rre(r.T, T_gt):.2f} deg")
     if not last:
         print("\nno verified estimate was published")
-    print(f"\nreport: {out_json}" if out_json is not None else f"\nnode logs: {cfg.log_dir} (--json FILE keeps "
-          "the report)")
+    if out_json is not None:
+        print(f"\nreport: {out_json}")
+    else:
+        print(f"\nnode logs: {cfg.log_dir} (--json FILE keeps the report)")
     if args.png:
         from sgreg_core.plots.merged import plot_merged_map
         from sgreg_core.plots.replay import plot_replay

@@ -1,6 +1,7 @@
 """sgreg replay on the shipped bags: real agent and registration processes over DDS on loopback,
 scored against the bags' ground truth."""
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -91,11 +92,16 @@ def test_a_damaged_chunk_stops_the_replay_with_one_line_and_no_score(tmp_path):
     middle = len(data) // 2
     data[middle:middle + 32] = bytes(x ^ 0xFF for x in data[middle:middle + 32])
     mcap.write_bytes(data)
-    # without --json, as the README's colcon section runs it: the report is only printed
+    # without --json, as the README's colcon section runs it: nothing is written where it runs,
+    # and the node logs go to a new folder in the temporary directory, named in the refusal
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     res = subprocess.run(SGREG + ["replay", str(bad)], capture_output=True, text=True, timeout=400,
-                         cwd=tmp_path)
+                         cwd=tmp_path, env={**os.environ, "TMPDIR": str(tmp)})
     assert res.returncode == 2 and "is damaged" in res.stderr, res.stderr[-2000:]
-    assert "Traceback" not in res.stderr and [p.name for p in tmp_path.iterdir()] == ["bad"]
+    assert "Traceback" not in res.stderr and sorted(p.name for p in tmp_path.iterdir()) == ["bad", "tmp"]
+    logs = [p for p in tmp.iterdir() if p.name.startswith("sgreg_replay_logs_")]
+    assert len(logs) == 1 and list(logs[0].glob("*.log")) and f"node logs: {logs[0]}" in res.stderr, res.stderr[-500:]
 
 
 def test_four_agents_on_a_building_floor_end_in_one_frame(tmp_path):
