@@ -112,7 +112,11 @@ class PipelineConfig:
     repeats:        look-alike placements of the source graph in the reference, and the
                     gates for maps that do not repeat it (pose/repeats.py).
     geometric:      a pose from the clouds' geometry alone when every semantic route of a
-                    dense estimate with clouds was refused (pose/geometric.py)."""
+                    dense estimate with clouds was refused (pose/geometric.py).
+    kept_noise_bound: m, inlier bound of the kept point correspondences in a merged estimate
+                    (node centers keep coarse_pose.noise_bound): kept points lie on surfaces,
+                    and under the centers' bound one compact cluster of them also fits a pose
+                    turned far from the truth about it."""
 
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
@@ -125,8 +129,11 @@ class PipelineConfig:
     coarse_pairs: int = 8
     repeats: RepeatConfig = field(default_factory=RepeatConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
+    kept_noise_bound: float = 0.15
 
     def __post_init__(self):
+        if not 0.0 < self.kept_noise_bound < np.inf:
+            raise ValueError(f"kept_noise_bound must be a finite distance > 0 (m), got {self.kept_noise_bound}")
         if self.coarse_pairs < 0:
             raise ValueError(f"coarse_pairs must be >= 0, got {self.coarse_pairs}")
         if self.min_nodes < 1:
@@ -344,7 +351,8 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
                       ref_cloud: np.ndarray | ReferenceCloud | None = None,
                       cfg: PipelineConfig | None = None,
                       timings: dict | None = None,
-                      kept: Correspondences | None = None) -> Registration:
+                      kept: Correspondences | None = None,
+                      kept_pose: np.ndarray | None = None) -> Registration:
     """Match encoded graphs and estimate T (SRC -> REF). Dense mode needs dense features.
 
     src_cloud / ref_cloud: verification clouds in each graph's frame (all node points;
@@ -352,7 +360,10 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     correspondences only. timings: stages already spent by the caller (graph, encoding) are
     kept and the matching / pose stages added; "total" is left to the caller when it passes
     timings in (it knows where it started). kept: coarse mode only, correspondences from an
-    earlier dense estimate merged with the node centers (mode "merged")."""
+    earlier dense estimate merged with the node centers (mode "merged"); kept_pose: that
+    estimate's T_levelled, one more candidate pose (weighed by the clouds with the fitted ones:
+    GNC over centers and kept points together can settle between two poses, and a fit of the
+    kept points alone lies decimetres from the ICP-refined pose they came from)."""
     cfg = cfg or PipelineConfig()
     t_start = time.perf_counter()
     own_total = timings is None
@@ -361,6 +372,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
     if min(src_feats.num_nodes, ref_feats.num_nodes) < cfg.min_nodes:
         return _finish(out, timings, t_start, own_total)
     src_ids, ref_ids = np.asarray(src_feats.node_ids), np.asarray(ref_feats.node_ids)
+    bounds, given = None, None     # the pose config's own, except for kept correspondences
     if cfg.mode == "dense":
         dm = model.match_dense(src_feats, ref_feats, timings)
         nodes, pts = dm.nodes, dm.points
@@ -375,6 +387,9 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
                                np.asarray(nodes.score, np.float64),
                                np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64))
         if kept is not None and len(kept):
+            bounds = np.r_[np.full(len(corr), cfg.coarse_pose.noise_bound),
+                           np.full(len(kept), cfg.kept_noise_bound)]
+            given = None if kept_pose is None else [kept_pose]
             corr = Correspondences.concat(corr, kept)
             out.mode = "merged"
     out.node_pairs = np.stack([src_ids[nodes.src_idx], ref_ids[nodes.ref_idx]], 1).astype(np.int64)
@@ -398,7 +413,7 @@ def register_features(model: SGRegModel, src_feats: NodeFeatures, ref_feats: Nod
         ref_cloud = ReferenceCloud(ref_cloud, pose_cfg.verify_voxel, pose_cfg.footprint_cell)
     groups = corr.groups()
     res = estimate_pose(corr.src_xyz, corr.ref_xyz, corr.score, src_cloud, ref_cloud,
-                        pose_cfg, groups=groups)
+                        pose_cfg, groups=groups, noise_bounds=bounds, given=given)
     pose_ms = {k: v for k, v in res.timing_ms.items() if k != "total"}
     if guided_on and res.reason in cfg.guided.after and isinstance(ref_cloud, ReferenceCloud):
         t_guided = time.perf_counter()

@@ -397,7 +397,8 @@ def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
 
 def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None,
                   cfg: PoseConfig = PoseConfig(), noise_bounds=None, groups=None,
-                  hypotheses: list[np.ndarray] | None = None) -> PoseResult:
+                  hypotheses: list[np.ndarray] | None = None,
+                  given: list[np.ndarray] | None = None) -> PoseResult:
     """Estimate T with ref ~ T src from correspondences (src_pts[i], ref_pts[i]) and judge it;
     never raises on bad data.
 
@@ -412,6 +413,9 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     hypotheses:   PoseResult.hypotheses of an earlier pass over the same correspondences (e.g.
                   one with more pair poses): GNC and the clique pyramid are not run again (so
                   used_pyramid and clique_sizes stay unset); empty or None: fitted here.
+    given:        poses compared beside the fitted ones, e.g. the fit of correspondences kept
+                  from an earlier verified estimate (GNC over all weighs them against the new
+                  ones and can land between the two).
     """
     clock = _Clock()
     src, ref = as_points(src_pts), as_points(ref_pts)
@@ -438,6 +442,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
     known = [np.asarray(T, np.float64) for T in hypotheses or [] if is_rigid(T)]   # malformed: none
     candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, known)
+    candidates += [np.asarray(T, np.float64) for T in given or [] if is_rigid(T)]
     if not candidates:
         result.timing_ms = clock.done()
         return result
@@ -471,11 +476,13 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     plausible = judge(ev, vcfg, have_clouds=False) == "ok"
     if plausible and ver is not None and cfg.icp:
         # A pose from node centers is decimetres off and the clouds would turn away a pair
-        # that ICP aligns; ICP can also slide along a wall, so it must not lose support.
+        # that ICP aligns; ICP can also slide along a wall, so it must lose neither support:
+        # on a small map it can gain a point of fitness while the footprint fitness the
+        # verdict judges drops by a tenth, metres off.
         T_icp = refine_icp(verifier, T, cfg)
         ver_icp = verifier(T_icp)
         clock.lap("icp")
-        if ver_icp.fitness >= ver.fitness:
+        if ver_icp.fitness >= ver.fitness and ver_icp.footprint_fitness >= ver.footprint_fitness:
             result.T, result.refined, ver = T_icp, True, ver_icp
     if ver is not None:
         ev.fitness, ev.footprint_share = ver.footprint_fitness, ver.footprint_share

@@ -266,13 +266,14 @@ class _PendingRequest:
 class Kept:
     """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
     had in each map then and both maps' levelling then, to notice when either map moves
-    under them."""
+    under them, and the estimate's pose between the levelled graphs (peer -> own)."""
 
     corr: Correspondences
     peer_nodes: dict[int, np.ndarray]
     own_nodes: dict[int, np.ndarray]
     own_level: np.ndarray = field(default_factory=lambda: np.eye(3))
     peer_level: np.ndarray = field(default_factory=lambda: np.eye(3))
+    pose: np.ndarray | None = None
 
 
 def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
@@ -480,10 +481,11 @@ class Peers:
         timings: dict = {}
         t0 = time.perf_counter()
         self._recheck_kept(link, msg)
-        kept = link.kept.corr if link.kept is not None else None
+        kept = link.kept
         reg = register_features(self.model, msg.nodes, self.agent.features,
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
-                                self._coarse_cfg, timings, kept=kept)
+                                self._coarse_cfg, timings, kept=None if kept is None else kept.corr,
+                                kept_pose=None if kept is None else kept.pose)
         link.coarse_data = (self.agent.digest, msg.digest)
         passes = reg.success and reg.node_matches >= max(self.cfg.min_coarse_matches,
                                                          self.cfg.min_node_matches)
@@ -776,7 +778,7 @@ class Peers:
                 corr, own = reg.inlier_corr(), self.agent.features
                 kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
                             _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R,
-                            np.asarray(dense.level))
+                            np.asarray(dense.level), reg.T_levelled.copy())
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,
                              kept)

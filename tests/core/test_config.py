@@ -48,7 +48,8 @@ def test_values_of_the_right_type_are_taken():
 @pytest.mark.parametrize("make", [
     lambda: GraphConfig(box_angles=0), lambda: GraphConfig(edge_factor=0.0),
     lambda: GraphConfig(contact_dist=math.inf), lambda: GraphConfig(min_points=0),
-    lambda: PipelineConfig(min_nodes=0), lambda: CaseConfig(n=0), lambda: CaseConfig(seed=-1),
+    lambda: PipelineConfig(min_nodes=0), lambda: PipelineConfig(kept_noise_bound=0.0),
+    lambda: PipelineConfig(kept_noise_bound=math.nan), lambda: CaseConfig(n=0), lambda: CaseConfig(seed=-1),
     lambda: CaseConfig(max_translation=math.nan), lambda: CaseConfig(overlap=(0.8, 0.3)),
     lambda: BenchConfig(threads=0)])
 def test_settings_that_would_divide_by_zero_or_score_nothing_are_refused(make):

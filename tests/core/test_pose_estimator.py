@@ -469,3 +469,65 @@ def test_a_second_pass_on_the_first_pass_hypotheses_matches_a_pass_from_scratch(
     assert again.reason == fresh.reason and again.inliers == fresh.inliers
     assert np.array_equal(again.T, fresh.T) and again.confidence == fresh.confidence
     assert not again.used_pyramid and np.array_equal(again.hypotheses, first.hypotheses)
+
+
+def test_a_given_pose_is_weighed_beside_the_fitted_ones():
+    """A merged estimate's many confident node-center matches may all agree on a wrong pose
+    while the fewer kept points agree on the right one: GNC and every clique then fit the wrong
+    pose. The pose the kept points came from, given, is one more candidate, and the clouds
+    pick it. A malformed given pose is no candidate."""
+    rng = np.random.default_rng(31)
+    room = box_room(rng)
+    T = random_room_pose(rng)
+    ref_cloud = apply_T(T, room) + rng.normal(0, 0.005, room.shape)
+    T_wrong = T @ make_T(yaw_rotation(np.radians(150.0)), [1.0, 0.5, 0.0])
+    right_src = room[rng.choice(len(room), 25, replace=False)]
+    wrong_src = rng.uniform(0, ROOM, (60, 3))
+    src = np.r_[right_src, wrong_src]
+    ref = np.r_[apply_T(T, right_src), apply_T(T_wrong, wrong_src)] + rng.normal(0, 0.01, (85, 3))
+    weights = np.r_[np.full(25, 0.1), np.ones(60)]
+    groups = np.r_[np.arange(25) // 5, 100 + np.arange(60) // 10]   # five objects, six
+    cfg = PoseConfig(icp=True)
+    alone = estimate_pose(src, ref, weights, room, ref_cloud, cfg, groups=groups)
+    assert not alone.success and pose_error(alone.T, T)[1] > 90
+    given = estimate_pose(src, ref, weights, room, ref_cloud, cfg, groups=groups,
+                          given=[np.full((4, 4), np.nan), T @ make_T(np.eye(3), [0.05, 0.0, 0.0])])
+    assert given.success and given.candidates == alone.candidates + 1
+    assert pose_error(given.T, T)[0] < 0.1 and given.evidence.objects == 5
+
+
+def test_icp_is_taken_only_when_it_lowers_neither_fitness(monkeypatch):
+    """On a small map ICP can slide a right pose along a wall, gaining a little plain fitness
+    while the footprint fitness the verdict judges falls: the estimate keeps its own pose."""
+    import sgreg_core.pose.estimator as est_mod
+    from sgreg_core.pose.verify import Verification
+
+    rng = np.random.default_rng(13)
+    room = box_room(rng)
+    T = random_room_pose(rng)
+    ref_cloud = apply_T(T, room) + rng.normal(0, 0.005, room.shape)
+    src, ref, _ = correspondences(rng, 400, 0.5, T)
+    slid = T @ make_T(np.eye(3), [0.8, 0.0, 0.0])
+    real_verifier = est_mod.cloud_verifier
+
+    def verifier_seeing_a_slide(src_cloud, ref_cloud, cfg, footprint_drop):
+        v = real_verifier(src_cloud, ref_cloud, cfg)
+        right = v(T)
+
+        def judge(pose):
+            if np.allclose(pose, slid):   # a point more fitness, a tenth less on the footprint
+                return Verification(fitness=right.fitness + 0.01, overlap=right.overlap,
+                                    score=right.score, rmse=right.rmse,
+                                    footprint_share=right.footprint_share,
+                                    footprint_fitness=right.footprint_fitness - footprint_drop)
+            return v(pose)
+        return type("SlidVerifier", (), {"__call__": lambda self, pose: judge(pose),
+                                         "valid": True, "src": v.src, "reference": v.reference})()
+
+    monkeypatch.setattr(est_mod, "refine_icp", lambda verifier, T0, cfg: slid)
+    for drop, taken in ((0.1, False), (0.0, True)):
+        monkeypatch.setattr(est_mod, "cloud_verifier",
+                            lambda s, r, c, d=drop: verifier_seeing_a_slide(s, r, c, d))
+        res = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=PoseConfig(icp=True))
+        assert res.refined is taken
+        assert pose_error(res.T, T)[0] == pytest.approx(0.8 if taken else 0.0, abs=0.05)
