@@ -440,9 +440,9 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         return result
     s, r, wk, bk, gk = src[keep], ref[keep], w[keep], b[keep], g[keep]
     gcfg = GncConfig(cfg.gnc.max_iters, cfg.gnc.factor, cfg.gnc.tol, cfg.dof)
-    known = [np.asarray(T, np.float64) for T in hypotheses or [] if is_rigid(T)]   # malformed: none
+    known = _rigid_poses(hypotheses)   # malformed: none
     candidates = _hypotheses(s, r, wk, bk, cfg, gcfg, result, clock, known)
-    candidates += [np.asarray(T, np.float64) for T in given or [] if is_rigid(T)]
+    candidates += _rigid_poses(given)
     if not candidates:
         result.timing_ms = clock.done()
         return result
@@ -505,6 +505,19 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     result.confidence = confidence(ev, vcfg)
     result.timing_ms = clock.done()
     return result
+
+
+def _rigid_poses(poses) -> list[np.ndarray]:
+    """The rigid (4, 4) poses among `poses` (a list of them, or one), float64; anything else
+    is dropped, never raised on."""
+    if poses is None:
+        return []
+    if isinstance(poses, np.ndarray) and poses.ndim == 2:
+        poses = [poses]
+    try:
+        return [np.asarray(T, np.float64) for T in poses if is_rigid(T)]
+    except TypeError:    # not a sequence
+        return []
 
 
 def cloud_verifier(src_cloud, ref_cloud, cfg: PoseConfig) -> CloudVerifier | None:

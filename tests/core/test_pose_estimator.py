@@ -328,6 +328,10 @@ def test_malformed_weights_bounds_and_hypotheses_are_refused_not_raised():
     bad = [np.full((4, 4), np.nan), np.eye(3), "pose"]
     res = estimate_pose(src, ref, hypotheses=bad)
     assert res.success and pose_error(res.T, T)[0] < 0.05
+    # one pose where a list was meant, or no poses at all, is no reason to raise either
+    for given in (bad, np.full((4, 4), np.nan), 5, T):
+        res = estimate_pose(src, ref, hypotheses=np.full((4, 4), np.nan), given=given)
+        assert res.success and pose_error(res.T, T)[0] < 0.05
 
 
 @pytest.mark.parametrize("bad", [{"footprint_cell": 0.0}, {"footprint_cell": float("nan")},

@@ -532,25 +532,50 @@ def test_a_merged_estimate_weighs_the_pose_its_kept_correspondences_came_from(mo
     """Each coarse graph after a link is confirmed is estimated with the kept dense inliers and
     the dense estimate's own pose as one more candidate: the kept points alone, or mixed with
     confident wrong node matches, can settle decimetres or a turn away from it (docs/VERDICT.md,
-    merged estimates)."""
+    section 14)."""
+    from scipy.spatial.transform import Rotation
+
+    import sgreg_core.maps.level as level_mod
+    import sgreg_core.pipeline as pipeline_mod
     import sgreg_core.runtime.peers as peers_mod
 
-    a, b, reg, _ = confirmed_link(model, graphs)
+    a, b, reg, _ = make_agents(model, graphs)
+    # b levelled its map by 3 deg: the pose between the levelled graphs, which the kept pairs
+    # and the centers of a merged estimate are in, is not the pose between the maps
+    b.level = level_mod.Levelling.from_rotation(Rotation.from_rotvec([0.05, 0.0, 0.0]).as_matrix())
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified, est.reason
     kept = reg.links["b"].kept
     assert kept is not None and kept.pose is not None
-    moved = kept.pose[:3, :3] @ kept.corr.src_xyz.T + kept.pose[:3, 3:4]
-    assert np.median(np.linalg.norm(moved.T - kept.corr.ref_xyz, axis=1)) < 0.1
-    seen = []
-    real = peers_mod.register_features
+
+    def residual(T):
+        moved = T[:3, :3] @ kept.corr.src_xyz.T + T[:3, 3:4]
+        return np.median(np.linalg.norm(moved.T - kept.corr.ref_xyz, axis=1))
+
+    assert residual(kept.pose) < 0.1 < residual(np.linalg.inv(est.T))
+    seen, bounds = [], []
+    real, real_pose = peers_mod.register_features, pipeline_mod.estimate_pose
 
     def spy(*args, **kwargs):
         seen.append(kwargs)
         return real(*args, **kwargs)
 
+    def spy_pose(*args, **kwargs):
+        bounds.append(kwargs["noise_bounds"])
+        return real_pose(*args, **kwargs)
+
     monkeypatch.setattr(peers_mod, "register_features", spy)
+    monkeypatch.setattr(pipeline_mod, "estimate_pose", spy_pose)
     est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
     assert est.mode == "merged" and est.verified, est.reason
     assert seen[-1]["kept"] is kept.corr and seen[-1]["kept_pose"] is kept.pose
+    # kept point pairs count as inliers within their own bound, node centers within theirs
+    cfg = reg.cfg.pipeline
+    n = len(kept.corr)
+    assert np.all(bounds[0][-n:] == cfg.kept_noise_bound) and cfg.kept_noise_bound < cfg.coarse_pose.noise_bound
+    assert bounds[0].size > n and np.all(bounds[0][:-n] == cfg.coarse_pose.noise_bound)
 
 
 def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, graphs):
