@@ -413,9 +413,9 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
     hypotheses:   PoseResult.hypotheses of an earlier pass over the same correspondences (e.g.
                   one with more pair poses): GNC and the clique pyramid are not run again (so
                   used_pyramid and clique_sizes stay unset); empty or None: fitted here.
-    given:        poses compared beside the fitted ones, e.g. the fit of correspondences kept
-                  from an earlier verified estimate (GNC over all weighs them against the new
-                  ones and can land between the two).
+    given:        poses compared beside the fitted ones, e.g. the pose of an earlier verified
+                  estimate whose correspondences are among these (GNC over all weighs them
+                  against the new ones and can land between the two).
     """
     clock = _Clock()
     src, ref = as_points(src_pts), as_points(ref_pts)

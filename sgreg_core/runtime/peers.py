@@ -271,9 +271,9 @@ class Kept:
     corr: Correspondences
     peer_nodes: dict[int, np.ndarray]
     own_nodes: dict[int, np.ndarray]
+    pose: np.ndarray
     own_level: np.ndarray = field(default_factory=lambda: np.eye(3))
     peer_level: np.ndarray = field(default_factory=lambda: np.eye(3))
-    pose: np.ndarray | None = None
 
 
 def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
@@ -777,8 +777,8 @@ class Peers:
             if dense is not None and reg.success and self.cfg.keep_correspondences:
                 corr, own = reg.inlier_corr(), self.agent.features
                 kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
-                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), self.agent.level.R,
-                            np.asarray(dense.level), reg.T_levelled.copy())
+                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), reg.T_levelled.copy(),
+                            self.agent.level.R, np.asarray(dense.level))
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,
                              kept)
