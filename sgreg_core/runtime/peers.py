@@ -31,13 +31,15 @@ An estimate that passes the verdict is not yet published as verified. The link t
 - confirmed -> none: an estimate made from new data (not merged with kept correspondences)
   that passes the verdict but disagrees with the link withdraws it (reason "contradicted"); it
   becomes the new candidate and nothing is published for that peer until a link is confirmed
-  again.
+  again. A link that the peer's word confirmed falls back to a candidate when the peer says its
+  own link was contradicted (counter withdrawn_with_peer): the word is taken back.
 Merged estimates rest on kept correspondences, which are no new evidence: they can keep a
 confirmed link but never confirm or contradict one. The kept correspondences are re-checked
 whenever either map changes: when the nodes they come from have moved in either map (a
 front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
 the peer's dense cloud (so too when either map is levelled anew), and every merged estimate
-that fails the verdict drops them too. Without a dense cloud of the peer nothing is verified
+that fails the verdict drops them too. Without kept correspondences the peer's dense cloud is
+dropped when the nodes of the answer it came with have moved in the peer's map. Without a dense cloud of the peer nothing is verified
 at all, so new points are then asked for at the search interval, not the confirmed link's, and
 promptly when a coarse estimate passes the verdict (prompt_request).
 An estimate the verdict refused only for its confidence is taken when the peer's confirmed
@@ -186,7 +188,9 @@ class PeersConfig:
         (AgentConfig.heartbeat_period_s); when the own map changes and the peer's last coarse
         graph is older than this, the estimate is made against it instead of waiting.
     kept_max_shift_m: kept correspondences (and the peer's dense cloud) are dropped when the
-        nodes they come from moved by more than this (median, in either map) since.
+        nodes they come from moved by more than this (median, in either map) since; without
+        kept correspondences, the peer's dense cloud when the nodes of its answer moved so in
+        the peer's map.
     merged_tolerance: (m, deg) an estimate that lies farther than this from where the merged
         frame of three or more agents places the peer is withheld as disputed_by_cycles (the
         merger's cycle tolerance, MergeConfig.cycle_m / cycle_deg).
@@ -333,6 +337,7 @@ class PeerLink:
     candidate_at: float = -np.inf   # when the candidate was first estimated
     confirmed: Hypothesis | None = None
     tie_at: float = -np.inf      # when an estimate of the link was last refused as ambiguous
+    by_peer: bool = False        # the confirmed link rests on the peer's word (confirmed_by_peer)
 
     @property
     def state(self) -> str:
@@ -407,12 +412,19 @@ class Peers:
         when it is a dense estimate that passed the peer's verdict. It may be heard before the
         peer's first graph. A candidate it confirms is confirmed at once. A result that says
         the peer's link is no longer confirmed, or that its cycles dispute it, takes its
-        confirmed link back as a witness; a contradicted one takes back every witness."""
+        confirmed link back as a witness; a contradicted one takes back every witness, and the
+        confirmation of a link that rested on them."""
         if peer == self.agent.cfg.name:
             return
         held = self._witnesses.get(peer, {})
         if reason == "contradicted":
             held.clear()
+            link = self.links.get(peer)
+            if link is not None and link.confirmed is not None and link.by_peer:
+                # the word it was confirmed by is taken back: it stands on this agent's own
+                # estimates again, a candidate until a second one from other data agrees
+                self._withdraw(link, "withdrawn_with_peer", f"{peer} withdrew its link, whose word "
+                               "confirmed this one", replace(link.confirmed, kept=None), now)
         elif link_state != "confirmed" or reason == "disputed_by_cycles":
             held.pop("confirmed", None)
         if peer in self._witnesses and not held:
@@ -554,8 +566,7 @@ class Peers:
         if not (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
                 and msg is not None and _levelled_alike(msg.level, dense.level)):
             return None
-        then = _centers_of(dense.nodes.node_ids, msg.nodes.node_ids, msg.nodes.centers)
-        if _median_shift(then, dense.nodes.node_ids, dense.nodes.centers) > self.cfg.kept_max_shift_m:
+        if self._moved_between(msg, dense):
             return None
         t0 = time.perf_counter()
         reg = register_features(self.model, msg.nodes, self.agent.features, link.dense_cloud,
@@ -666,6 +677,8 @@ class Peers:
                 and _numeric(msg.nodes.centers, 2) and _numeric(msg.extents, 2)
                 and (not dense or (_numeric(msg.points, 2) and _numeric(msg.point_node, 1, "iu")))):
             return "malformed_message", "node ids, features, centers, extents or points are not numeric arrays"
+        if msg.nodes.node_ids.size and msg.nodes.node_ids.max() > np.iinfo(np.int64).max:
+            return "bad_nodes", "a node id is past the largest int64"
         n = msg.num_nodes
         k = self.model.cfg.shape.points_per_node    # what a peer of the same weights samples per node
         if n > self.cfg.max_nodes or (dense and msg.points.shape[0] > min(self.cfg.max_points, n * k)):
@@ -675,7 +688,7 @@ class Peers:
         desc, centers = msg.nodes.descriptor, msg.nodes.centers
         if desc.ndim != 2:
             return "bad_feature_size", f"features {desc.shape}, expected ({n}, dim)"
-        dim = self.agent.features.descriptor.shape[1] if self.agent.ready else desc.shape[1]
+        dim = self.model.cfg.match.d_match     # what every peer of the same weights sends
         if desc.shape != (n, dim) or centers.shape != (n, 3):
             return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
         if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
@@ -730,6 +743,11 @@ class Peers:
         # dense answer at the new one): they go, the peer's points of now stay
         self._drop_kept_of_old_levelling(link, msg.level)
         if link.kept is None:
+            # the peer's points alone: stale once the peer's frame moved under them
+            if link.dense_cloud is not None and link.dense is not None and self._moved_between(msg, link.dense):
+                self.log(f"dense points of {link.peer_id} dropped: their nodes moved in its map "
+                         "since the dense exchange")
+                self._drop_dense(link)
             return
         own = self.agent.features
         shift = max(_median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
@@ -738,6 +756,13 @@ class Peers:
             self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
                      f"{shift:.2f} m since the dense exchange")
             self._drop_dense(link)
+
+    def _moved_between(self, graph: GraphMessage, dense: GraphMessage) -> bool:
+        """Whether the nodes of a dense answer lie more than kept_max_shift_m (median) from where
+        the peer's coarse graph puts them, or the graph has none of them: the two are not in
+        one frame."""
+        in_graph = _centers_of(dense.nodes.node_ids, graph.nodes.node_ids, graph.nodes.centers)
+        return _median_shift(in_graph, dense.nodes.node_ids, dense.nodes.centers) > self.cfg.kept_max_shift_m
 
     def _drop_kept_of_old_levelling(self, link: PeerLink, peer_level: np.ndarray) -> None:
         """Forget the kept correspondences when the peer has levelled its map anew since: they
@@ -912,6 +937,9 @@ class Peers:
         self.log(f"link to {link.peer_id} withdrawn: {why}")
         self._count(counter)
         link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, candidate, now
+        link.by_peer = False
+        if candidate is not None and candidate.mode != "dense" and self.cfg.confirm_with_dense:
+            link.prompt = True    # only a dense estimate confirms a coarse candidate
 
     def _held_long(self, link: PeerLink, now: float) -> bool:
         """Whether the link's candidate has stood long enough to be confirmed (first_link_hold_s)."""
@@ -928,6 +956,7 @@ class Peers:
                  kept_from: Hypothesis | None = None) -> None:
         """The link is confirmed with hyp; its dense inliers (or kept_from's) are kept."""
         link.confirmed, link.candidate, link.prompt = hyp, None, False
+        link.by_peer = counter == "confirmed_by_peer"
         self._keep(link, kept_from or hyp)
         self._count(counter)
 

@@ -297,6 +297,27 @@ def test_the_peers_own_estimates_witness_a_first_estimate(model, graphs):
         == "awaiting_confirmation"
 
 
+def test_a_link_the_peers_word_confirmed_falls_back_when_the_peer_withdraws_its_own(model, graphs):
+    """a's dense candidate is confirmed by b's confirmed link; b then says its link was
+    contradicted: a's link is a candidate again, nothing is published until a's own estimate from
+    other data confirms it. A link a confirmed on its own estimates stays."""
+    from sgreg_core.geometry import invert_transform
+    T_ba = invert_transform(T_GT)
+    alone = PeersConfig(coarse_with_dense=False)
+    a, b, reg, logs = make_agents(model, graphs, alone)
+    reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).verified
+    reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=0.8)
+    link = reg.links["b"]
+    assert link.state == "candidate" and link.kept is None and reg.counters["withdrawn_with_peer"] == 1
+    assert any("withdrew its link" in line for line in logs)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)      # a's own second estimate
+    assert est.verified and est.link == "confirmed" and reg.counters["confirmed"] == 1
+    reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=1.2)
+    assert link.state == "confirmed" and reg.counters["withdrawn_with_peer"] == 1
+
+
 def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(model, graphs):
     """An estimate refused only for its confidence is taken when b's confirmed link agrees with
     it (vouched_min_confidence); not when b's link disagrees, is only a dense estimate, or the
@@ -602,6 +623,43 @@ def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, gra
     assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
 
 
+def test_the_peers_points_are_dropped_when_its_map_jumps_with_no_kept_correspondences(model, graphs):
+    """A confirmed link whose kept correspondences are gone (a refused merged estimate drops
+    them) still holds the peer's points: when the peer's frame jumps they go too, and new ones
+    are asked for at once, instead of every estimate failing on the old points while the link
+    stays confirmed until the confirmed link's request interval."""
+    a, b, reg, logs = confirmed_link(model, graphs)
+    link = reg.links["b"]
+    link.kept = None
+    jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
+    b.set_graph(jumped, 2, 1_500_000_000)
+    est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
+    assert link.dense_cloud is None and any("moved in its map" in line for line in logs)
+    assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
+    # a peer map that only grows keeps its points
+    a, b, reg, logs = confirmed_link(model, graphs)
+    reg.links["b"].kept = None
+    drift(b, graphs, 2, 1.5)
+    reg.on_coarse(b.coarse_message(3), now=1.5)
+    assert reg.links["b"].dense_cloud is not None and reg.counters["kept_dropped"] == 0
+
+
+def test_a_coarse_estimate_that_withdraws_a_link_asks_for_points_promptly(model, graphs):
+    """The contradicting coarse estimate becomes the candidate, which only a dense estimate
+    confirms (confirm_with_dense): its request goes out as soon as the peer answers again."""
+    a, b, reg, _ = confirmed_link(model, graphs)
+    reg.links["b"].kept = None
+    # a's own map is re-anchored: b's points stay valid, the link's pose does not
+    a.set_graph(moved_graph(graphs[0], yaw_transform(0.8, (2.0, 1.0, 0.0)), np.random.default_rng(7)),
+                2, 2_000_000_000)
+    # 1.2 s after the last request: within the search interval (2 s), past the time the peer
+    # takes to answer again (AgentConfig.dense_min_interval_s, 1 s)
+    est, req = reg.on_coarse(b.coarse_message(3), now=1.2)
+    assert est.reason == "contradicted" and reg.links["b"].candidate.mode == "coarse"
+    requests = ([req] if req is not None else []) + reg.on_tick(1.3)
+    assert len(requests) == 1, "the coarse candidate waits for no search interval"
+
+
 def test_duplicate_out_of_order_and_restart(model, graphs):
     a, b, reg, logs = make_agents(model, graphs)
     reg.on_coarse(b.coarse_message(5), now=0.0)
@@ -781,11 +839,30 @@ def test_no_estimate_before_own_map(model, graphs):
 
 def test_a_malformed_graph_before_the_own_map_is_refused_not_raised(model, graphs):
     _, b, _, _ = make_agents(model, graphs)
-    reg = Peers(PeersConfig(), AgentCore(AgentConfig(name="a"), model), model, log=lambda s: None)
+    own = AgentCore(AgentConfig(name="a"), model)
+    reg = Peers(PeersConfig(), own, model, log=lambda s: None)
     msg = b.coarse_message(1)
     msg.nodes = replace(msg.nodes, descriptor=msg.nodes.descriptor[:, 0])
     assert reg.on_coarse(msg, now=0.0) == (None, None)
     assert reg.counters["bad_feature_size"] == 1
+    # descriptors of another width: refused now, not kept to fail every estimate once the own
+    # map is there
+    narrow = b.coarse_message(2)
+    narrow.nodes = replace(narrow.nodes, descriptor=narrow.nodes.descriptor[:, :7].copy())
+    assert reg.on_coarse(narrow, now=1.0) == (None, None)
+    assert reg.counters["bad_feature_size"] == 2 and ("b" not in reg.links or reg.links["b"].coarse is None)
+    own.set_graph(graphs[0], 1, 0)
+    assert reg.on_own_map(now=4.0) == []
+
+
+def test_node_ids_past_int64_are_refused(model, graphs):
+    """The wire carries uint32 ids; a direct caller's uint64 past int64 would overflow where
+    node centers are compared."""
+    a, b, reg, _ = make_agents(model, graphs)
+    msg = b.coarse_message(1)
+    msg.nodes = replace(msg.nodes, node_ids=np.uint64(2**64 - 1) - msg.nodes.node_ids.astype(np.uint64))
+    assert reg.on_coarse(msg, now=0.0) == (None, None)
+    assert reg.counters["bad_nodes"] == 1
 
 
 def test_a_peer_result_that_is_not_a_rigid_transform_is_no_witness(model, graphs):
