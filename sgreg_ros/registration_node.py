@@ -247,8 +247,12 @@ class RegistrationNode(SgregNode):
         self.merger.take(result.agent, result.peer, result.T, result.verified, result.reason,
                          result.link, result.confidence, result.stamp_ns)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
-            self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode, result.reason,
-                                      result.link, self.clock_s())
+            if self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode,
+                                         result.reason, result.link, self.clock_s()):
+                # our link, confirmed on its word, is withdrawn: out of the merge and the views
+                # now (the other agents' mergers drop it with our next result about that peer)
+                self.merger.drop(self.name, result.agent)
+                self.matches.pop(result.agent, None)
 
     def on_merge(self) -> None:
         self.guarded("the merge", self._merge)

@@ -92,7 +92,9 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                 m.set_level(est.peer_id, agents[est.peer_id].level.R)
                 m.take(agent, est.peer_id, est.T, est.verified, est.reason, est.link, est.confidence, est.stamp_ns)
             # the peer hears the result too (its witness for the link, Peers.on_peer_result)
-            peers_of[est.peer_id].on_peer_result(agent, est.T, est.verified, est.mode, est.reason, est.link, now)
+            if peers_of[est.peer_id].on_peer_result(agent, est.T, est.verified, est.mode, est.reason,
+                                                    est.link, now):
+                mergers[est.peer_id].drop(est.peer_id, agent)    # as the node does
             records.append(ResultRecord(t=now, agent=agent, peer=est.peer_id, T=est.T,
                                         verified=est.verified, mode=est.mode, reason=est.reason,
                                         node_matches=est.node_matches, inliers=est.inliers,

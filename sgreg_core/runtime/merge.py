@@ -350,6 +350,10 @@ class Links:
             self._links.pop((agent, peer), None)
         return True
 
+    def drop(self, agent: str, peer: str) -> None:
+        """agent's link to peer is taken back outside any result (Peers.on_peer_result)."""
+        self._links.pop((agent, peer), None)
+
     def current(self, max_age_s: float = 0.0) -> list[Link]:
         """The links, without those made from maps more than max_age_s older than the newest
         map of any result (0: all)."""
@@ -396,6 +400,10 @@ class Merger:
         # as float32, what the other agents' mergers get over the wire: the same order for all
         confidence = float(np.float32(confidence))
         return self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp_ns)
+
+    def drop(self, agent: str, peer: str) -> None:
+        """Links.drop."""
+        self.links.drop(agent, peer)
 
     def _levelled(self, link: Link) -> Link:
         """The link between the two agents' levelled frames, with the current levellings."""

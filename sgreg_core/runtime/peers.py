@@ -406,37 +406,43 @@ class Peers:
         return self._estimate_coarse(link, now)
 
     def on_peer_result(self, peer: str, T_peer_agent: np.ndarray, verified: bool, mode: str,
-                       reason: str, link_state: str, now: float) -> None:
+                       reason: str, link_state: str, now: float) -> bool:
         """A peer's own estimate of its link to this agent (its RegistrationResult naming this
         agent), kept as a witness (see _witnessed) when the peer published it as verified, or
         when it is a dense estimate that passed the peer's verdict. It may be heard before the
         peer's first graph. A candidate it confirms is confirmed at once. A result that says
         the peer's link is no longer confirmed, or that its cycles dispute it, takes its
         confirmed link back as a witness; a contradicted one takes back every witness, and the
-        confirmation of a link that rested on them."""
+        confirmation of a link that rested on them. True when that withdrew the link to the
+        peer: the caller takes it out of its merge (no estimate says so before the next one)."""
         if peer == self.agent.cfg.name:
-            return
+            return False
         held = self._witnesses.get(peer, {})
+        withdrawn = False
         if reason == "contradicted":
             held.clear()
             link = self.links.get(peer)
             if link is not None and link.confirmed is not None and link.by_peer:
                 # the word it was confirmed by is taken back: it stands on this agent's own
-                # estimates again, a candidate until a second one from other data agrees
+                # estimates again, a candidate until a second one from other data agrees (not
+                # one on kept correspondences, which confirm nothing)
+                was = link.confirmed
                 self._withdraw(link, "withdrawn_with_peer", f"{peer} withdrew its link, whose word "
-                               "confirmed this one", replace(link.confirmed, kept=None), now)
+                               "confirmed this one", None if was.mode == "merged" else replace(was, kept=None),
+                               now)
+                withdrawn = True
         elif link_state != "confirmed" or reason == "disputed_by_cycles":
             held.pop("confirmed", None)
         if peer in self._witnesses and not held:
             del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
         if not passed:
-            return
+            return withdrawn
         if not is_rigid(T_peer_agent):   # the ROS layer decodes rigid ones only
             self.agent.refuse("bad_result", "")
             self._say_once(("bad_result", peer), f"result of {peer!r} with a transform that is not "
                            "rigid; no witness")
-            return
+            return withdrawn
         T = np.asarray(T_peer_agent, np.float64)
         if peer not in self._witnesses and len(self._witnesses) >= self.cfg.max_peers:
             del self._witnesses[min(self._witnesses, key=lambda p: max(t for _, t in self._witnesses[p].values()))]
@@ -446,6 +452,7 @@ class Peers:
         if self.cfg.confirm and link is not None and link.confirmed is None and link.candidate is not None \
                 and self._witnessed(link.candidate, peer, now) and self._held_long(link, now):
             self._confirm(link, link.candidate, "confirmed_by_peer")
+        return withdrawn
 
     def _witnessed(self, hyp: Hypothesis, peer: str, now: float) -> bool:
         """Whether the peer's own estimates confirm hyp (confirm_with_peer): they register this

@@ -308,14 +308,33 @@ def test_a_link_the_peers_word_confirmed_falls_back_when_the_peer_withdraws_its_
     reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
     _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
     assert reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5).verified
-    reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=0.8)
+    assert reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=0.8)
     link = reg.links["b"]
     assert link.state == "candidate" and link.kept is None and reg.counters["withdrawn_with_peer"] == 1
     assert any("withdrew its link" in line for line in logs)
     est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)      # a's own second estimate
     assert est.verified and est.link == "confirmed" and reg.counters["confirmed"] == 1
-    reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=1.2)
+    assert not reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=1.2)
     assert link.state == "confirmed" and reg.counters["withdrawn_with_peer"] == 1
+    # kept on merged estimates since: those confirm nothing, so no candidate is left
+    a, b, reg, _ = make_agents(model, graphs, alone)
+    reg.on_peer_result("b", T_ba, True, "merged", "ok", "confirmed", now=0.0)
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_dense(b.dense_message(1, req.node_ids, "a", req.sequence), now=0.5)
+    est, _ = reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert est.verified and est.mode == "merged"
+    assert reg.on_peer_result("b", T_ba, False, "dense", "contradicted", "candidate", now=1.2)
+    assert reg.links["b"].state == "none"
+
+
+def test_a_link_withdrawn_outside_an_estimate_leaves_the_merge(model, graphs):
+    """The registration node drops a link on_peer_result withdrew from its merger at once."""
+    from sgreg_core.runtime.merge import MergeConfig, Merger
+    merger = Merger(MergeConfig(), "a")
+    merger.take("a", "b", T_GT, True, "ok", "confirmed", 0.99, 1)
+    merger.take("a", "c", T_GT, True, "ok", "confirmed", 0.99, 1)
+    merger.drop("a", "b")
+    assert [(l.src, l.dst) for l in merger.links.current()] == [("a", "c")]
 
 
 def test_the_peers_confirmed_link_vouches_for_an_estimate_short_of_confidence(model, graphs):
