@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections import Counter
+from itertools import permutations
 from pathlib import Path
 
 import numpy as np
@@ -113,21 +114,18 @@ def main() -> int:
     latest, rows = {}, []
     for t, agent, imap in instance_maps_in_bag(args.bag, gt.get("t_origin", 0.0)):
         latest[agent] = imap
-        for src in sorted(latest) if len(latest) > 1 else []:
-            for ref in sorted(latest):
-                if ref == src:
-                    continue
-                T_true = invert_transform(T_scene[ref]) @ T_scene[src]
-                row = {"t": round(t, 2), "src": src, "ref": ref,
-                       **diagnose(model, latest[src], latest[ref], T_true, args.true_m)}
-                rows.append(row)
-                print(f"{t:6.1f} {src}->{ref} nodes {row['nodes'][0]:3d}/{row['nodes'][1]:3d} "
-                      f"shared {row['shared']:3d} | coarse: right {row['right_within_bound']:2d} of "
-                      f"{row['node_matches']:3d}, {_verdict(row, 'coarse'):14s} | dense: right points "
-                      f"{row['right_points']:4d} of {row['point_matches']:4d} on "
-                      f"{row['right_point_objects']:2d} objects, {_verdict(row, 'dense'):14s} "
-                      f"(oracle {row['dense_oracle']['reason']}, conf "
-                      f"{row['dense_oracle']['confidence']:.2f})", flush=True)
+        for src, ref in permutations(sorted(latest), 2):
+            T_true = invert_transform(T_scene[ref]) @ T_scene[src]
+            row = {"t": round(t, 2), "src": src, "ref": ref,
+                   **diagnose(model, latest[src], latest[ref], T_true, args.true_m)}
+            rows.append(row)
+            print(f"{t:6.1f} {src}->{ref} nodes {row['nodes'][0]:3d}/{row['nodes'][1]:3d} "
+                  f"shared {row['shared']:3d} | coarse: right {row['right_within_bound']:2d} of "
+                  f"{row['node_matches']:3d}, {_verdict(row, 'coarse'):14s} | dense: right points "
+                  f"{row['right_points']:4d} of {row['point_matches']:4d} on "
+                  f"{row['right_point_objects']:2d} objects, {_verdict(row, 'dense'):14s} "
+                  f"(oracle {row['dense_oracle']['reason']}, conf "
+                  f"{row['dense_oracle']['confidence']:.2f})", flush=True)
     tally = {route: dict(Counter(_verdict(r, route) for r in rows)) for route in ("coarse", "dense")}
     print(f"{len(rows)} updates x directions:", tally)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -39,9 +39,10 @@ whenever either map changes: when the nodes they come from have moved in either 
 front end that re-anchors its map, a peer whose frame jumped) they are dropped together with
 the peer's dense cloud (so too when either map is levelled anew), and every merged estimate
 that fails the verdict drops them too. Without kept correspondences the peer's dense cloud is
-dropped when the nodes of the answer it came with have moved in the peer's map. Without a dense cloud of the peer nothing is verified
-at all, so new points are then asked for at the search interval, not the confirmed link's, and
-promptly when a coarse estimate passes the verdict (prompt_request).
+dropped when the nodes of the answer it came with have moved in the peer's map. Without a dense
+cloud of the peer nothing is verified at all, so new points are then asked for at the search
+interval, not the confirmed link's, and promptly when a coarse estimate passes the verdict
+(prompt_request).
 An estimate the verdict refused only for its confidence is taken when the peer's confirmed
 link agrees with it (vouched_min_confidence). With first_link_hold_s, a first confirmation also
 waits until the candidate has stood that long; with withdraw_on_tie, a confirmed link is
@@ -739,7 +740,8 @@ class Peers:
     def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
         """Drop the kept correspondences and the peer's dense cloud when the nodes they come
         from moved in either map since they were kept, or either map was levelled anew (they
-        are in the levelled frames of then)."""
+        are in the levelled frames of then); without kept correspondences, the cloud when the
+        nodes of its dense answer moved in the peer's map."""
         relevelled = (link.dense is not None and not _levelled_alike(link.dense.level, msg.level)) or \
             (link.kept is not None and not _levelled_alike(link.kept.own_level, self.agent.level.R))
         if relevelled and (link.kept is not None or link.dense_cloud is not None):
@@ -905,8 +907,7 @@ class Peers:
         if cand is None or not self._agree(hyp.T, cand.T):
             link.candidate, link.candidate_at = hyp, now
             cand = None
-            if hyp.mode != "dense" and self.cfg.confirm_with_dense:
-                link.prompt = True    # only a dense estimate confirms a coarse candidate
+            self._await_dense(link)
         if self._witnessed(hyp, link.peer_id, now) and self._held_long(link, now):
             self._confirm(link, hyp, "confirmed_by_peer")
             return "ok"
@@ -926,8 +927,7 @@ class Peers:
             # an estimate on enough objects stands for a candidate on too few (keeping its dense
             # inliers); a coarse one then waits for a dense estimate, as a new candidate would
             link.candidate = hyp if hyp.kept is not None else replace(hyp, kept=cand.kept)
-            if hyp.mode != "dense" and self.cfg.confirm_with_dense:
-                link.prompt = True
+            self._await_dense(link)
         elif hyp.mode == "dense" and cand.mode != "dense" and (self._enough(hyp) or not self._enough(cand)):
             # the dense estimate stands for the coarse candidate it agrees with (while the hold
             # or a tie keeps it from confirming): the coarse graphs to come are other data for
@@ -945,8 +945,13 @@ class Peers:
         self._count(counter)
         link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, candidate, now
         link.by_peer = False
-        if candidate is not None and candidate.mode != "dense" and self.cfg.confirm_with_dense:
-            link.prompt = True    # only a dense estimate confirms a coarse candidate
+        self._await_dense(link)
+
+    def _await_dense(self, link: PeerLink) -> None:
+        """A new coarse candidate asks for the peer's points promptly (prompt_request): only a
+        dense estimate confirms it (confirm_with_dense)."""
+        if link.candidate is not None and link.candidate.mode != "dense" and self.cfg.confirm_with_dense:
+            link.prompt = True
 
     def _held_long(self, link: PeerLink, now: float) -> bool:
         """Whether the link's candidate has stood long enough to be confirmed (first_link_hold_s)."""

@@ -328,7 +328,8 @@ def test_a_link_the_peers_word_confirmed_falls_back_when_the_peer_withdraws_its_
 
 
 def test_a_link_withdrawn_outside_an_estimate_leaves_the_merge(model, graphs):
-    """The registration node drops a link on_peer_result withdrew from its merger at once."""
+    """Merger.drop, what the node and the offline replay call when on_peer_result withdrew a
+    link, takes that one link out of the merge and leaves the others."""
     from sgreg_core.runtime.merge import MergeConfig, Merger
     merger = Merger(MergeConfig(), "a")
     merger.take("a", "b", T_GT, True, "ok", "confirmed", 0.99, 1)
