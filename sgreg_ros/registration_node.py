@@ -274,6 +274,10 @@ class RegistrationNode(SgregNode):
         for request in self.peers.on_tick(now):
             self.send_request(request)
         for peer in self.peers.expire(now):
+            # its last links would place it on /tf for good (no new result ages them), fixed
+            # peer or not: its next results bring them back
+            self.merger.forget(peer)
+            self.matches.pop(peer, None)
             self.drop_peer(peer)
 
     def guarded(self, what: str, work) -> None:

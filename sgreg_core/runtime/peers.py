@@ -193,8 +193,9 @@ class PeersConfig:
         kept correspondences, the peer's dense cloud when the nodes of its answer moved so in
         the peer's map.
     merged_tolerance: (m, deg) an estimate that lies farther than this from where the merged
-        frame of three or more agents places the peer is withheld as disputed_by_cycles (the
-        merger's cycle tolerance, MergeConfig.cycle_m / cycle_deg).
+        frame places the peer, where other agents' links join the two (Merger.expected), is
+        withheld as disputed_by_cycles (the merger's cycle tolerance, MergeConfig.cycle_m /
+        cycle_deg).
     pipeline: the one registration pipeline (pipeline.PipelineConfig): dense settings for
         dense answers, coarse settings for coarse and merged estimates, ICP before the verdict.
         The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
@@ -365,7 +366,7 @@ class Peers:
         self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
         self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
         self.placed: set[str] = set()     # peers other agents' links place (Merger.placed_by_others)
-        # T_agent^peer where the merged frame of three or more agents places the peer, or None
+        # T_agent^peer where other agents' links place the peer in the merged frame, or None
         self.expected: Callable[[str], np.ndarray | None] = lambda peer: None
         self.counters: Counter = agent.counters     # one table per node: the agent's
         self._request_seq = 0
@@ -843,9 +844,9 @@ class Peers:
         return invert_transform(reg.T)
 
     def _off_merged_frame(self, peer: str, T: np.ndarray) -> bool:
-        """Whether T disagrees with where the merged frame of three or more agents puts the
-        peer (by the cycle tolerance): a link that the next merge would reject is not published
-        in the second before it."""
+        """Whether T disagrees with where other agents' links put the peer in the merged frame
+        (by the cycle tolerance): a link that the next merge would reject is not published in
+        the second before it."""
         expected = self.expected(peer)
         tol_m, tol_deg = self.cfg.merged_tolerance
         return expected is not None and not (rte(T, expected) < tol_m and rre(T, expected) < tol_deg)

@@ -58,9 +58,15 @@ def test_an_injected_wrong_link_is_rejected_by_cycle_consistency():
 
 def test_every_order_of_arrival_gives_the_same_tree():
     rng = np.random.default_rng(1)
-    links = [true_link(s, d, noise=1.0, rng=rng) for s, d in itertools.permutations("abcd", 2)]
+    links = [true_link(s, d, noise=1.0, rng=rng) for s, d in itertools.permutations("abcd", 2)
+             if (s, d) != ("c", "a")]
     links.append(Link("c", "a", from_4dof(2.0, (5.0, 0.0, 0.0)), confidence=0.9))   # wrong
     first = merge(links)
+    assert [l.key for l, _ in first.rejected] == [("c", "a")]
+    with pytest.raises(ValueError):     # one measurement per directed link, none of an agent to itself
+        merge(links + [true_link("c", "a")])
+    with pytest.raises(ValueError):
+        merge(links + [Link("b", "b", np.eye(4))])
     for k in range(5):
         again = merge(list(np.random.default_rng(k).permutation(np.array(links, dtype=object))))
         assert again.attached == first.attached
@@ -113,24 +119,29 @@ def test_links_follow_what_each_agent_says():
 
 
 def test_links_age_by_the_maps_not_by_a_clock():
-    """max_link_age_s: a link made from maps much older than the newest map any result names
-    is left out; a failed estimate's newer maps count (its maps moved on without the link)."""
+    """max_link_age_s: a link made from maps much older than the newest maps its own pair's
+    results name is left out (a failed estimate's newer maps count: the pair moved on without
+    the link); another pair's stamps, however far ahead (a wrong clock), age nothing."""
     links = Links()
     T = true_link("a", "b").T
     links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=100 * S)
     links.take("b", "c", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=105 * S)
     assert len(links.current(max_age_s=10.0)) == 2
-    links.take("b", "c", T, verified=False, reason="too_few_inliers", link_state="confirmed",
+    links.take("b", "a", T, verified=False, reason="too_few_inliers", link_state="candidate",
                confidence=0.1, stamp_ns=111 * S)
     assert [l.key for l in links.current(max_age_s=10.0)] == [("b", "c")]   # a -> b's maps are 11 s old
     assert len(links.current()) == 2                                         # 0: links never age
     links.take("a", "b", T, verified=True, reason="ok", link_state="confirmed", confidence=0.9, stamp_ns=112 * S)
     assert len(links.current(max_age_s=10.0)) == 2                           # re-verified
-    # a stamp far ahead (a wrong clock) ages the others only until that pair's next result
-    links.take("c", "a", T, verified=False, reason="too_few_inliers", link_state="none", confidence=0.0,
+    # an agent whose clock is far ahead, then silent, ages no other pair's links
+    links.take("c", "x", T, verified=False, reason="too_few_inliers", link_state="none", confidence=0.0,
                stamp_ns=10_000 * S)
-    assert links.current(max_age_s=10.0) == []
-    links.take("c", "a", T, verified=False, reason="too_few_inliers", link_state="none", confidence=0.0,
+    assert len(links.current(max_age_s=10.0)) == 2
+    # its own pair's stamp far ahead ages that pair's link until the pair's next result
+    links.take("c", "b", T, verified=False, reason="too_few_inliers", link_state="confirmed", confidence=0.0,
+               stamp_ns=10_000 * S)
+    assert [l.key for l in links.current(max_age_s=10.0)] == [("a", "b")]
+    links.take("c", "b", T, verified=False, reason="too_few_inliers", link_state="confirmed", confidence=0.0,
                stamp_ns=113 * S)
     assert len(links.current(max_age_s=10.0)) == 2
     with pytest.raises(TypeError):                                            # seconds are refused
@@ -271,3 +282,88 @@ def test_a_link_that_is_no_rigid_transform_or_has_no_confidence_is_not_taken():
     m.update()
     assert set(m.result.poses) == {"a", "b"} and "c" not in m.result.attached
     assert all(np.isfinite(T).all() for T in m.result.poses.values())
+
+
+def test_a_link_to_itself_one_beyond_any_map_or_a_levelling_on_its_side_is_not_taken():
+    """Checks the ROS layer makes, in the core for its other callers: a self-link gathered
+    triangle support and counted its agent as checked; a 1e308 m translation made NaN poses."""
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    assert m.take("a", "b", true_link("a", "b").T, True, "ok", "confirmed", 0.9, 1 * S)
+    assert not m.take("b", "b", np.eye(4), True, "ok", "confirmed", 0.9, 1 * S)
+    far = true_link("b", "c").T.copy()
+    far[0, 3] = 1e308
+    assert not m.take("b", "c", far, True, "ok", "confirmed", 0.9, 1 * S)
+    tilted = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])    # 90 deg about x
+    assert not m.set_level("b", tilted)
+    m.update()
+    assert set(m.result.poses) == {"a", "b"} and m.result.checked == set()
+    assert all(np.isfinite(T).all() for T in m.result.poses.values())
+
+
+def test_the_merged_frame_expects_a_pose_only_where_other_agents_links_join_the_pair():
+    """In a chain a - b - c, a's own link is all that places b for a: no expectation (a's new
+    estimate of b was withheld as disputed_by_cycles with no cycle). Closing the triangle
+    through c makes one."""
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    for s_, d in ("ab", "bc"):
+        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 1 * S)
+    m.update()
+    assert m.result.attached == ["a", "b", "c"] and m.expected("b") is None
+    m.take("c", "a", true_link("c", "a").T, True, "ok", "confirmed", 0.9, 2 * S)
+    m.take("d", "e", true_link("d", "e").T, True, "ok", "confirmed", 0.9, 2 * S)   # a group of its own
+    m.update()
+    assert m.result.attached == ["a", "b", "c"]
+    T = m.expected("b")
+    assert T is not None and np.allclose(T, true_link("a", "b").T, atol=1e-6)
+    assert m.expected("d") is None
+
+
+def test_poses_are_averaged_to_a_fixed_point_in_yaw_too():
+    """The averaging stopped when no translation moved, though yaws still did: with maps whose
+    origins coincide, after one sweep."""
+    world = {k: from_4dof(y, (0.0, 0.0, 0.0)) for k, y in zip("abcd", (0.0, 0.5, 1.0, 1.5))}
+    rng = np.random.default_rng(0)
+    links = [Link(s_, d, from_4dof(rng.normal(0, np.radians(2)), (0, 0, 0))
+                  @ invert_transform(world[d]) @ world[s_], 0.9) for s_, d in itertools.permutations("abcd", 2)]
+    r = merge(links, cfg=MergeConfig(average_iters=200))
+    for x in "bcd":     # each pose is the weighted circular mean of what its links say
+        says = [to_4dof(r.poses[l.dst if l.src == x else l.src] @ l.towards(l.dst if l.src == x else l.src))[0]
+                for l in r.accepted if x in l.key]
+        mean = np.arctan2(np.mean(np.sin(says)), np.mean(np.cos(says)))
+        assert abs(np.degrees(mean - to_4dof(r.poses[x])[0])) < 1e-3, x
+
+
+def test_a_peer_gone_silent_is_forgotten_by_the_merger():
+    """An agent's node stops listening to a silent peer; its merger kept the peer's last links
+    (on /tf for good, links never age by default) and refused every later result about it."""
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    for s_, d in ("ab", "bc", "ca"):
+        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, 1 * S)
+    m.update()
+    assert m.result.attached == ["a", "b", "c"]
+    m.forget("c")
+    m.update()
+    assert m.result.attached == ["a", "b"] and not any("c" in l.key for l in m.links.current())
+    assert "c" not in m.links.agents
+
+
+def test_both_links_of_a_pair_get_the_same_answer_whatever_the_names():
+    """Two measurements of one pair, 20 m apart and 3 deg off each other: compared in one
+    agent's frame only, the lever arm made one link agree and the other not, and the names'
+    order decided whether the pair attached."""
+    from sgreg_core.runtime.merge import _support
+
+    X = from_4dof(0.4, (20.0, 0.0, 0.0))
+    T_qp = invert_transform(X) @ from_4dof(np.radians(3.0), (0.0, 0.0, 0.0))
+    outcomes = []
+    for p, q in (("a", "b"), ("b", "a")):
+        pair, _ = _support([Link(p, q, X), Link(q, p, T_qp)], MergeConfig())
+        assert len(set(pair.values())) == 1, pair
+        outcomes.append(merge([Link(p, q, X, 0.9), Link(q, p, T_qp, 0.9)]).attached)
+    assert outcomes[0] == outcomes[1]
