@@ -14,8 +14,8 @@ steps on the same links, so all of them publish the same tree:
    cycle_deg: 1 when the same pair measured the other way agrees (checked in both agents'
    frames), and one per consistent triangle a -> c -> b through a third agent and per pair of
    measurements of its two other sides (up to 4 per third agent). When the two agents of a
-   pair disagree and no third agent's links decide, neither link is kept (two maps cannot tell which of their two estimates is wrong). The
-   others are taken in order of support, then confidence; one joins the accepted set when it
+   pair disagree and no third agent's links decide, neither link is kept (two maps cannot tell
+   which of their two estimates is wrong). The others are taken in order of support, then confidence; one joins the accepted set when it
    connects two groups of agents, or when it agrees with the path the accepted set already
    gives between its ends. Otherwise it breaks the cycles it is in and is rejected, with the
    reason. A wrong link in a cycle of right ones closes no consistent cycle, so it comes after
@@ -82,8 +82,8 @@ class MergeConfig:
                            0.01, 10.0)
     cycle_deg: float = param(5.0, "links closing a cycle within this rotation (deg) are consistent",
                              0.1, 90.0)
-    max_link_age_s: float = param(0.0, "leave out links from maps this much older than their pair's newest results' (s; 0: never)",
-                                  0.0, 86400.0)
+    max_link_age_s: float = param(0.0, "leave out links from maps this much older than their pair's "
+                                  "newest results' (s; 0: never)", 0.0, 86400.0)
     average_iters: int = 30
 
 
@@ -161,18 +161,16 @@ def _support(links: list[Link], cfg: MergeConfig) -> tuple[dict, dict]:
     idx = {a: i for i, a in enumerate(agents)}
     n = len(agents)
     # M[a, b, k]: T_a^b measured by a's link (k = 0) and by b's link, inverted (k = 1)
-    M = np.tile(np.eye(4), (n, n, 2, 1, 1))
-    have = np.zeros((n, n, 2), bool)
-    for l in links:
-        a, b = idx[l.src], idx[l.dst]
-        M[a, b, 0], have[a, b, 0] = l.T, True
-        M[b, a, 1], have[b, a, 1] = invert_transform(l.T), True
     src = np.array([idx[l.src] for l in links])
     dst = np.array([idx[l.dst] for l in links])
-    inv_T = np.stack([invert_transform(l.T) for l in links])                    # (L, 4, 4)
+    T = np.stack([l.T for l in links])                                          # (L, 4, 4)
+    inv_T = np.stack([invert_transform(l.T) for l in links])
+    M = np.tile(np.eye(4), (n, n, 2, 1, 1))
+    have = np.zeros((n, n, 2), bool)
+    M[src, dst, 0], have[src, dst, 0] = T, True
+    M[dst, src, 1], have[dst, src, 1] = inv_T, True
     # the pair's other measurement: the link dst -> src, inverted; compared in both agents'
     # frames (the lever arm differs), so that both links of a pair get the same answer
-    T = np.stack([l.T for l in links])
     pair_ok = have[src, dst, 1] & _consistent_many(inv_T, M[src, dst, 1], cfg) \
         & _consistent_many(T, M[dst, src, 0], cfg)     # A^-1 B in a's frame, A B^-1 in b's
     # triangles: T_c^b @ T_a^c for every third agent c and every pair of measurements (k1, k2),
@@ -200,8 +198,7 @@ def _consistent_many(inv_A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> np.n
 
 
 def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
-    dt, dyaw = _deviation(A, B)
-    return dt < cfg.cycle_m and dyaw < cfg.cycle_deg
+    return bool(_consistent_many(invert_transform(A), B, cfg))
 
 
 def _path(tree: dict[str, dict[str, tuple[np.ndarray, Link]]], a: str,
@@ -380,8 +377,8 @@ class Links:
         whose transform is not rigid, lies beyond MAX_COORD_M or whose confidence is not a
         number: a NaN or an overflow would spread through every pose averaged with it."""
         keep = verified or reason == "disputed_by_cycles"
-        if agent == peer or keep and not (is_rigid(T) and np.isfinite(confidence)
-                                          and np.abs(np.asarray(T)[:3, 3]).max() <= MAX_COORD_M):
+        if agent == peer or (keep and not (is_rigid(T) and np.isfinite(confidence)
+                                           and np.abs(np.asarray(T)[:3, 3]).max() <= MAX_COORD_M)):
             return False
         self.agents |= {agent, peer}
         stamp_ns = _stamp_ns(stamp_ns)
