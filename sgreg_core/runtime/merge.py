@@ -201,18 +201,56 @@ def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
     return bool(_consistent_many(invert_transform(A), B, cfg))
 
 
-def _path(tree: dict[str, dict[str, tuple[np.ndarray, Link]]], a: str,
-          b: str) -> tuple[np.ndarray, list[Link]] | None:
-    """T_a^b along the accepted forest and the links on the way (None when a and b are not
-    joined)."""
-    seen, stack = {a: (np.eye(4), [])}, [a]
-    while stack:
-        x = stack.pop()
-        for y, (T_xy, l) in tree[x].items():
-            if y not in seen:
-                seen[y] = (T_xy @ seen[x][0], seen[x][1] + [l])
-                stack.append(y)
-    return seen.get(b)
+class _Forest:
+    """The accepted links as a graph (one edge per pair, its first accepted measurement), and a
+    spanning forest of it in which each agent keeps its pose in its tree's root (T_agent^root):
+    the path transform between two joined agents is one product, and joining two trees
+    re-poses the smaller one, so a fleet of n agents checks its n^2 links at O(1) each. The
+    graph is walked only for a rejected link, to name the links on its path."""
+
+    def __init__(self, names: list[str]):
+        self.graph: dict[str, dict[str, Link]] = {a: {} for a in names}
+        self.root = {a: a for a in names}
+        self.members = {a: [a] for a in names}
+        self.P = {a: np.eye(4) for a in names}       # T_agent^root
+
+    def path_T(self, a: str, b: str) -> np.ndarray | None:
+        """T_a^b by the pair's own accepted link where there is one, else along the forest
+        (None when a and b are not joined)."""
+        if b in self.graph[a]:
+            return self.graph[a][b].towards(b)
+        if self.root[a] != self.root[b]:
+            return None
+        return invert_transform(self.P[b]) @ self.P[a]
+
+    def path_links(self, a: str, b: str) -> list[Link]:
+        """The links on a path of the graph from a to b (a and b joined)."""
+        seen, stack = {a: []}, [a]
+        while stack:
+            x = stack.pop()
+            for y, l in self.graph[x].items():
+                if y not in seen:
+                    seen[y] = seen[x] + [l]
+                    stack.append(y)
+        return seen[b]
+
+    def add(self, l: Link) -> None:
+        """An accepted link: the first of its pair is the pair's edge; one that joins two trees
+        re-poses the smaller into the larger's root."""
+        if l.dst in self.graph[l.src]:
+            return
+        self.graph[l.src][l.dst] = self.graph[l.dst][l.src] = l
+        keep, move = self.root[l.src], self.root[l.dst]
+        if keep == move:
+            return
+        # G maps the moved root into the kept one: T_src^keep T_dst^src T_move^dst
+        G = self.P[l.src] @ invert_transform(l.T) @ invert_transform(self.P[l.dst])
+        if len(self.members[keep]) < len(self.members[move]):
+            keep, move, G = move, keep, invert_transform(G)
+        moved = self.members.pop(move)
+        for c, P in zip(moved, G @ np.stack([self.P[c] for c in moved])):
+            self.root[c], self.P[c] = keep, P
+        self.members[keep] += moved
 
 
 def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
@@ -220,31 +258,31 @@ def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
     """Step 2 on links in order: (accepted, rejected with reasons, keys of disputed links,
     contested pairs: a rejected link broke a cycle whose accepted links are no better backed
     than it, so that only the order decided between them)."""
-    tree: dict[str, dict[str, tuple[np.ndarray, Link]]] = {a: {} for a in names}
+    forest = _Forest(names)
     accepted, rejected, disputed, contested = [], [], set(), set()
     for l in order:
-        found = _path(tree, l.src, l.dst)
-        if found is not None and not _consistent(l.T, found[0], cfg):
-            dt, dyaw = _deviation(l.T, found[0])
+        found = forest.path_T(l.src, l.dst)
+        if found is not None and not _consistent(l.T, found, cfg):
+            dt, dyaw = _deviation(l.T, found)
             rejected.append((l, f"breaks the cycles it is in: {dt:.2f} m / {dyaw:.1f} deg from the "
                                 f"path of the accepted links (closes {triangles[l.key]} consistent "
                                 "cycles through other agents)"))
             # disputed by other agents' links when the path runs through them, or when the link
             # of the same pair it contradicts is backed by a triangle
+            direct = l.dst in forest.graph[l.src]
             same_pair = [m for m in accepted if set(m.key) == set(l.key)]
-            if l.dst not in tree[l.src] or any(triangles[m.key] for m in same_pair):
+            if not direct or any(triangles[m.key] for m in same_pair):
                 disputed.add(l.key)
             # one link against one: the rest of the path backs the accepted link's side, and
             # the two are equally backed (in a longer cycle of weak links, no single link is
             # singled out by the cycle, and the order of support and confidence stands)
-            weak = [m for m in found[1] if support[m.key] <= support[l.key]]
-            if len(weak) == 1 and l.dst not in tree[l.src]:   # a pair at odds with itself: step 2
-                contested |= {frozenset(l.key), frozenset(weak[0].key)}
+            if not direct:    # a pair at odds with itself: step 2
+                weak = [m for m in forest.path_links(l.src, l.dst) if support[m.key] <= support[l.key]]
+                if len(weak) == 1:
+                    contested |= {frozenset(l.key), frozenset(weak[0].key)}
             continue
         accepted.append(l)
-        if l.dst not in tree[l.src]:    # the first accepted measurement of a pair spans the forest
-            tree[l.src][l.dst] = (l.T, l)
-            tree[l.dst][l.src] = (invert_transform(l.T), l)
+        forest.add(l)
     return accepted, rejected, disputed, contested
 
 
@@ -321,13 +359,12 @@ def _average(group: list[str], anchor: str | None, links: list[Link],
     weighted average of what their accepted measurements say, iterated to a fixed point."""
     if anchor is None or anchor not in group:
         return {}
-    tree: dict[str, dict[str, tuple[np.ndarray, Link]]] = {a: {} for a in group}
+    forest = _Forest(group)
     for l in links:
-        tree[l.src].setdefault(l.dst, (l.T, l))
-        tree[l.dst].setdefault(l.src, (invert_transform(l.T), l))
+        forest.add(l)
     # start from the spanning paths: T_merged<-a = T_a^anchor
     index = {a: i for i, a in enumerate(group)}
-    P = np.stack([from_4dof(*to_4dof(_path(tree, a, anchor)[0])) for a in group])
+    P = np.stack([from_4dof(*to_4dof(forest.path_T(a, anchor))) for a in group])
     # per agent, its measurements: (the other ends, T_a^other, weights)
     around = {a: ([], [], []) for a in group}
     for l in links:

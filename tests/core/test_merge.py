@@ -367,3 +367,28 @@ def test_both_links_of_a_pair_get_the_same_answer_whatever_the_names():
         assert len(set(pair.values())) == 1, pair
         outcomes.append(merge([Link(p, q, X, 0.9), Link(q, p, T_qp, 0.9)]).attached)
     assert outcomes[0] == outcomes[1]
+
+
+def test_the_forest_gives_every_path_transform_and_its_links():
+    """_Forest: after links join trees in any order, path_T(a, b) is T_a^b for every joined
+    pair (the smaller tree re-posed into the larger's root), None across trees, and path_links
+    walks connected links from a to b."""
+    from sgreg_core.runtime.merge import _Forest
+    rng = np.random.default_rng(5)
+    names = sorted(WORLD)
+    for _ in range(20):
+        forest = _Forest(names)
+        pairs = list(itertools.permutations(names, 2))
+        for i in rng.permutation(len(pairs))[:6]:
+            forest.add(true_link(*pairs[i]))
+        for a, b in pairs:
+            T = forest.path_T(a, b)
+            if forest.root[a] != forest.root[b]:
+                assert T is None
+                continue
+            assert np.allclose(T, invert_transform(WORLD[b]) @ WORLD[a], atol=1e-9)
+            at = a
+            for l in forest.path_links(a, b):
+                assert at in l.key
+                at = l.dst if l.src == at else l.src
+            assert at == b
