@@ -57,6 +57,16 @@ def check_params_file(path: str | Path | None) -> list[str]:
     return [] if DEFAULT_PARAMS is None else unknown_parameters(given, parameter_file_names(DEFAULT_PARAMS))
 
 
+def merge_config_of(params_file: str | Path | None):
+    """The MergeConfig the nodes started with params_file run (None: the shipped file), so that
+    a replay scores the merge the agents made, not the defaults."""
+    from sgreg_core.runtime.merge import MergeConfig
+    from sgreg_ros.params import parameter_file_values, pick
+
+    path = params_file or DEFAULT_PARAMS
+    return MergeConfig() if path is None else MergeConfig(**pick(MergeConfig, parameter_file_values(path)))
+
+
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,
                  overrides: dict | None = None) -> list[str]:
     """The command line of one node: `python -m sgreg_ros <exe> --ros-args -r __ns:=/<agent> ...`.

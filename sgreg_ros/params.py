@@ -127,10 +127,16 @@ def unknown_parameters(given: Iterable[str], known: Iterable[str]) -> list[str]:
 
 
 def parameter_file_names(path) -> set[str]:
-    """The parameter names a ROS parameter file gives sgreg's nodes (nested mappings under
-    ros__parameters named with dots, as ROS does): those of its blocks for any node, `agent` or
-    `registration` (a file shared with other nodes may name theirs); ValueError when the file
-    is not a parameter file."""
+    """The parameter names a ROS parameter file gives sgreg's nodes (see parameter_file_values);
+    ValueError when the file is not a parameter file."""
+    return set(parameter_file_values(path))
+
+
+def parameter_file_values(path) -> dict:
+    """The parameters a ROS parameter file gives sgreg's nodes, name -> value (nested mappings
+    under ros__parameters named with dots, as ROS does): those of its blocks for any node,
+    `agent` or `registration` (a file shared with other nodes may name theirs; a later block
+    wins, as in ROS); ValueError when the file is not a parameter file."""
     from pathlib import Path
 
     import yaml
@@ -157,19 +163,19 @@ def parameter_file_names(path) -> set[str]:
     if not blocks:
         raise ValueError("no 'ros__parameters' mapping in it (a ROS parameter file: "
                          "/**: {ros__parameters: {name: value}})")
-    names: set[str] = set()
+    values: dict = {}
 
     def flat(params: dict, prefix: str) -> None:
         for k, v in params.items():
             if isinstance(v, dict):
                 flat(v, f"{prefix}{k}.")
             else:
-                names.add(f"{prefix}{k}")
+                values[f"{prefix}{k}"] = v
 
     for key, params in blocks:
         if key.rstrip("/").rsplit("/", 1)[-1] in ("**", "*", "agent", "registration"):
             flat(params, "")
-    return names
+    return values
 
 
 def overrides_of(node) -> dict:

@@ -48,6 +48,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "peers.confirm=false (repeatable)")
 
 
+def _bag_digest(path: Path) -> str:
+    """sha256 over a bag's ground truth and rosbag2 metadata (message counts, sizes, duration):
+    a bag re-made or re-recorded under the same name is not taken for the one a result was
+    cached from."""
+    h = hashlib.sha256()
+    for name in ("ground_truth.json", "metadata.yaml"):
+        f = Path(path) / name
+        h.update(name.encode())
+        h.update(f.read_bytes() if f.is_file() else b"")
+    return h.hexdigest()[:16]
+
+
 def _source_digest() -> str:
     """sha256 over the Python sources of the pipeline: a code change invalidates cached results."""
     import sgreg_cli
@@ -143,10 +155,12 @@ def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
 
         maps = instance_maps_in_bag(job.path, gt.get("t_origin", 0.0))
         counters: dict = {}
-        records = offline_replay(maps, model, _offline_config(args.overrides), counters=counters)
+        cfg = _offline_config(args.overrides)
+        records = offline_replay(maps, model, cfg, counters=counters)
         score = score_replay(records, gt["T_scene_map"], gt.get("objects"))
         return replay_report(job.path, score, None, {"backend": "offline"},
-                             merge=merge_report(records, gt["T_scene_map"])[1], counters=counters)
+                             merge=merge_report(records, gt["T_scene_map"], cfg=cfg.merge)[1], counters=counters)
+    from ..processes import merge_config_of
     from ..replay import ReplayConfig, run_replay
 
     # a short tail: a suite scores registration; `sgreg replay` measures the quiet link
@@ -157,7 +171,7 @@ def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
     return replay_report(job.path, score, run_, {"backend": "ros", "params_file": args.params_file,
                                                  "overrides": cfg.overrides},
-                         merge=merge_report(run_.records, gt["T_scene_map"])[1])
+                         merge=merge_report(run_.records, gt["T_scene_map"], cfg=merge_config_of(args.params_file))[1])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -200,8 +214,12 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"sgreg bench-replay: --out: {exc}", file=sys.stderr)
         return 2
+    from ..processes import DEFAULT_PARAMS
+
+    # the nodes read the shipped file when given none; the offline backend reads no file
+    params_file = args.params_file or (DEFAULT_PARAMS if args.backend == "ros" else None)
     try:
-        params = Path(args.params_file).read_bytes() if args.params_file else b""
+        params = Path(params_file).read_bytes() if params_file else b""
     except OSError as exc:
         print(f"sgreg bench-replay: cannot read --params-file {args.params_file}: {exc.strerror or exc}",
               file=sys.stderr)
@@ -244,7 +262,8 @@ def run(args: argparse.Namespace) -> int:
     results: dict[str, dict] = {}
     started = time.monotonic()
     for i, job in enumerate(jobs):
-        key = hashlib.sha256(json.dumps({**context, "spec": job.spec, "bag": str(job.path)},
+        key = hashlib.sha256(json.dumps({**context, "spec": job.spec, "bag": str(job.path),
+                                         "bag_digest": _bag_digest(job.path)},
                                         sort_keys=True).encode()).hexdigest()[:16]
         cached = None if args.fresh else cache.load(job.name, key)
         if cached is not None:

@@ -40,11 +40,11 @@ def _fmt_T(T) -> str:
 def run(args) -> int:
 
     from ..bags import BagError
+    from ..processes import merge_config_of
     from ..replay import ReplayConfig, ground_truth_of, run_replay
 
     from sgreg_core.bench.bandwidth import HEADER, format_table
     from sgreg_core.bench.merge_score import merge_report
-    from sgreg_core.runtime.merge import MergeConfig
     from sgreg_core.bench.replay_report import (PAPER_KB_PER_FRAME, PAPER_SUCCESS_RATE, foreign_warning,
                                                 replay_report)
     from sgreg_core.bench.replay_score import ground_truth, score_replay
@@ -88,9 +88,9 @@ def run(args) -> int:
         print(f"sgreg replay: {exc}{where}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
-    frame = MergeConfig().merged_frame
-    tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == frame}
-    merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None)
+    merge_cfg = merge_config_of(cfg.params_file)
+    tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == merge_cfg.merged_frame}
+    merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None, cfg=merge_cfg)
     merge["published_on_tf"] = bool(tf_poses)
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s,
                                                    "params_file": cfg.params_file,

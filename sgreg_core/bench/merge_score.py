@@ -7,7 +7,7 @@ pose T_merged<-x is compared with T_anchor<-x of the ground truth (the merged fr
 anchor's map frame).
 
 Public API:
-    merge_report(records, T_scene_map, poses=None, step_s=1.0, cfg=None) -> (MergeResult, dict)
+    merge_report(records, T_scene_map, poses=None, hold_s=1.0, cfg=None) -> (MergeResult, dict)
                                    the merge every agent's merger holds after these results
                                    (replay records) and its score, with "while_replayed": how
                                    long it held a wrong link or misplaced an agent during the bag
@@ -26,46 +26,42 @@ from .replay_score import ground_truth
 WRONG_M, WRONG_DEG = 0.5, 5.0
 
 
-def merge_report(records, T_scene_map: dict, poses: dict | None = None, step_s: float = 1.0,
+def merge_report(records, T_scene_map: dict, poses: dict | None = None, hold_s: float = 1.0,
                  cfg: MergeConfig | None = None) -> tuple[MergeResult, dict]:
     """The merge every agent's merger computes from these registration results (they all hear
     the same results, so they all hold this one) at the end of the bag, and its score_merge
-    (poses: as published, see there) with "while_replayed": the same merge re-scored every
-    step_s of bag time, "seconds" scored, "wrong_s" the seconds it kept a wrong link or placed
-    an agent off by more than the wrong-link criterion (what /tf carried then: a robot acting
-    on the merged map acts on that), and the "wrong_windows" [start, end] in bag seconds."""
+    (poses: as published, see there) with "while_replayed": the merge re-scored after every
+    result's bag time (it changes only when results come), each state held until the next one
+    and the last for hold_s (a merge period); "seconds" scored, "wrong_s" the seconds it kept
+    a wrong link or placed an agent off by more than the wrong-link criterion, and the
+    "wrong_windows" [start, end) in bag seconds. The nodes merge once a merge period, so this
+    bounds what /tf carried from above: a wrong link held for less than a period may never
+    have reached it. cfg: the merge settings the agents ran (default MergeConfig())."""
     agents = sorted(T_scene_map)
     merger = Merger(cfg or MergeConfig(), min(agents))
     merger.links.agents |= set(agents)
-    records = sorted(records, key=lambda r: r.t)     # bag time grows with replay time
+    records = sorted(records, key=lambda r: r.bag_t if r.bag_t is not None else r.t)
     stamp = [r.bag_t if r.bag_t is not None else r.t for r in records]
-    steps = np.arange(stamp[0], stamp[-1] + step_s, step_s) if records else np.zeros(0)
-    i, wrong, windows = 0, 0, []
-
-    def take_until(t: float) -> None:
-        nonlocal i
-        while i < len(records) and stamp[i] <= t:
-            r = records[i]
-            # a result that states no confidence (older bags) weighs as a sure one
-            confidence = r.confidence if np.isfinite(r.confidence) else 1.0
-            merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, confidence, seconds_to_ns(stamp[i]))
-            i += 1
+    wrong_s, windows = 0.0, []
+    for i, r in enumerate(records):
+        # a result that states no confidence (older bags) weighs as a sure one
+        confidence = r.confidence if np.isfinite(r.confidence) else 1.0
+        merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, confidence, seconds_to_ns(stamp[i]))
+        if i + 1 < len(records) and stamp[i + 1] == stamp[i]:
+            continue                      # results of one instant are merged together
         merger.update()
-
-    for t in steps:
-        take_until(t)
         s = score_merge(merger.result, T_scene_map)
         off = s["max_pose_error_m"] is not None and (s["max_pose_error_m"] > WRONG_M
                                                       or s["max_pose_error_deg"] > WRONG_DEG)
         if s["wrong_links_kept"] or off:
-            wrong += 1
-            if windows and abs(windows[-1][1] - (t - step_s)) < 1e-9:
-                windows[-1][1] = float(t)
+            start, end = float(stamp[i]), float(stamp[i + 1] if i + 1 < len(records) else stamp[i] + hold_s)
+            wrong_s += end - start
+            if windows and windows[-1][1] == start:
+                windows[-1][1] = end
             else:
-                windows.append([float(t), float(t)])
-    take_until(np.inf)
-    timeline = {"seconds": float(len(steps) * step_s), "wrong_s": float(wrong * step_s),
-                "wrong_windows": windows}
+                windows.append([start, end])
+    seconds = float(stamp[-1] + hold_s - stamp[0]) if records else 0.0
+    timeline = {"seconds": seconds, "wrong_s": wrong_s, "wrong_windows": windows}
     return merger.result, {**score_merge(merger.result, T_scene_map, poses), "while_replayed": timeline}
 
 

@@ -58,6 +58,7 @@ class FrameScore:
     shared_objects: int | None
     registrable: bool | None
     evidence: dict
+    bag_t: float | None = None   # the frame's time on the bag's clock
 
 
 @dataclass
@@ -144,7 +145,7 @@ def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict |
         frames.append(FrameScore(r.t, r.agent, r.peer, r.mode, r.verified, r.reason, e_t, e_r,
                                  bool(r.verified and ok), r.total_ms, float(r.confidence), bool(ok),
                                  shared, None if shared is None else shared >= min_shared_objects,
-                                 dict(r.evidence)))
+                                 dict(r.evidence), r.bag_t))
     n = len(frames)
     good = [f for f in frames if f.success]
     verified = [f for f in frames if f.verified]
@@ -168,11 +169,23 @@ def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict |
         for agent, peer in sorted({(f.agent, f.peer) for f in frames}):
             fs = [f for f in frames if (f.agent, f.peer) == (agent, peer)]
             first_reg = next((f.t for f in fs if f.registrable), None)
-            first_ok = next((f.t for f in fs if f.success), None)
+            first_ok = next((f for f in fs if f.success), None)
+            since = registrable_since(objects, agent, peer, min_shared_objects)
+            # counted from when the maps could first be registered, not from the link's first
+            # registrable frame: a link that publishes nothing for a while is charged for it
             delay = None
-            if first_reg is not None and first_ok is not None:
-                delay = max(first_ok - first_reg, 0.0)
+            if since is not None and first_ok is not None and first_ok.bag_t is not None:
+                delay = max(first_ok.bag_t - since, 0.0)
             score.links[f"{agent}->{peer}"] = {"first_registrable_s": first_reg,
-                                               "first_success_s": first_ok,
+                                               "registrable_since_bag_s": since,
+                                               "first_success_s": None if first_ok is None else first_ok.t,
                                                "time_to_success_s": delay}
     return score
+
+
+def registrable_since(objects: dict, agent: str, peer: str,
+                      min_shared_objects: int = MIN_SHARED_OBJECTS) -> float | None:
+    """The bag time from which both agents' maps hold min_shared_objects common objects by
+    ground truth (None: never in the bag)."""
+    times = sorted({float(t) for name in (agent, peer) for t, _ in objects.get(name, [])})
+    return next((t for t in times if shared_objects(objects, agent, peer, t) >= min_shared_objects), None)

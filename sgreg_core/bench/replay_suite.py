@@ -307,7 +307,9 @@ def _row(results: list[dict]) -> dict:
     frames = [f for r in results for f in r["frames"]]
     reg = [f for f in frames if f.get("registrable")]
     links = [link for r in results for link in r.get("links", {}).values()]
-    reg_links = [link for link in links if link["first_registrable_s"] is not None]
+    # links whose maps could be registered by ground truth (older results: that published a
+    # registrable frame)
+    reg_links = [link for link in links if link.get("registrable_since_bag_s", link["first_registrable_s"]) is not None]
     kb = [r.get("kb_per_query_frame") for r in results]
     # seconds the merged frame held a wrong link or misplaced an agent (what /tf carried)
     merged_wrong = [(r.get("merge") or {}).get("while_replayed", {}).get("wrong_s") for r in results]

@@ -62,7 +62,9 @@ def test_registrable_frames_and_time_to_first_success():
     assert s.registrable_frames == 3 and s.success_rate_registrable == 2 / 3
     link = s.links["a->b"]
     assert link["first_registrable_s"] == 5.0 and link["first_success_s"] == 6.0
-    assert link["time_to_success_s"] == 1.0
+    # from bag time 4, when b's map first shared 3 objects, to the success at bag time 5.5: the
+    # link's silence before its first registrable frame counts
+    assert link["registrable_since_bag_s"] == 4.0 and link["time_to_success_s"] == 1.5
     assert score_replay(records, FRAMES).registrable_frames is None     # bags without objects
 
 
@@ -86,8 +88,16 @@ def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():
                rec(6.0, "a", "b", gt, True),
                rec(8.0, "a", "b", gt, True, "merged")]
     tl = merge_timeline(records, FRAMES)
-    assert tl["wrong_s"] == 3.0 and tl["wrong_windows"] == [[2.0, 4.0]], tl
+    assert tl["wrong_s"] == 3.0 and tl["wrong_windows"] == [[2.0, 5.0]], tl
     assert tl["seconds"] == 8.0
+    # held for less than a second between two results: still counted, to the result that ended it
+    brief = [rec(1.0, "a", "b", gt, False), rec(1.2, "a", "b", off, True),
+             replace(rec(1.8, "a", "b", gt, False, "dense"), reason="contradicted", link="none"),
+             rec(3.0, "a", "b", gt, True)]
+    tl = merge_timeline(brief, FRAMES)
+    assert np.isclose(tl["wrong_s"], 0.6) and np.allclose(tl["wrong_windows"], [[1.2, 1.8]]), tl
+    # a wrong link still held at the last result counts for one merge period after it
+    assert np.isclose(merge_timeline(brief[:2], FRAMES)["wrong_s"], 1.0)
     assert merge_timeline([r for r in records if r.T is not off], FRAMES)["wrong_s"] == 0.0
     assert merge_timeline([], FRAMES) == {"seconds": 0.0, "wrong_s": 0.0, "wrong_windows": []}
 

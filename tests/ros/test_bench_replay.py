@@ -60,6 +60,11 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert "suite tiny" in offline and "dense requests:" in offline
     off = json.loads((tmp_path / "off" / "results.json").read_text())["rows"]["all"]["dense_requests"]
     assert off["sent"] > 0 and off["refused_over_budget"] == 0      # two agents never reach the budget
+    # a bag whose ground truth changed under the same name is replayed, not taken from the cache
+    gt_file = tmp_path / "bags" / names[0] / "ground_truth.json"
+    gt_file.write_text(json.dumps(json.loads(gt_file.read_text()), indent=1))
+    again = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false")
+    assert again.count(": cached") == 1 and f"{names[1]}: cached" in again
     bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "peers.confirm=false"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "offline" in bad.stderr

@@ -138,3 +138,17 @@ def test_a_params_file_is_read_before_any_node_starts(tmp_path, capsys, monkeypa
         assert main(["agents", "--names", "a", "--params-file", str(typo)]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"sgreg agents: --params-file {typo}: {words}") and err.count("\n") == 1, err
+
+
+def test_a_replay_scores_the_merge_with_the_settings_its_nodes_ran(tmp_path):
+    """The merged-map score of `sgreg replay` / bench-replay re-runs the merger: with the merge
+    settings of the parameter file the nodes were started with, not the defaults."""
+    from sgreg_cli.processes import merge_config_of
+    from sgreg_core.runtime.merge import MergeConfig
+
+    assert merge_config_of(None) == MergeConfig()         # the shipped file sets the defaults
+    params = tmp_path / "loose.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    cycle_m: 3.0\n    merged_frame: world\n"
+                      "/a/registration:\n  ros__parameters:\n    cycle_deg: 12.0\n")
+    cfg = merge_config_of(params)
+    assert (cfg.cycle_m, cfg.cycle_deg, cfg.merged_frame) == (3.0, 12.0, "world")
