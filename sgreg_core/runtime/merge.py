@@ -217,6 +217,8 @@ class _Forest:
     def path_T(self, a: str, b: str) -> np.ndarray | None:
         """T_a^b by the pair's own accepted link where there is one, else along the forest
         (None when a and b are not joined)."""
+        if a == b:
+            return np.eye(4)
         if b in self.graph[a]:
             return self.graph[a][b].towards(b)
         if self.root[a] != self.root[b]:
