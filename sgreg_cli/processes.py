@@ -57,14 +57,35 @@ def check_params_file(path: str | Path | None) -> list[str]:
     return [] if DEFAULT_PARAMS is None else unknown_parameters(given, parameter_file_names(DEFAULT_PARAMS))
 
 
-def merge_config_of(params_file: str | Path | None):
-    """The MergeConfig the nodes started with params_file run (None: the shipped file), so that
-    a replay scores the merge the agents made, not the defaults."""
+def merge_config_of(params: bytes | None, agent: str):
+    """The MergeConfig that agent's registration node runs when started with the parameter
+    file of these contents (None: no file, the defaults), so that a replay scores the merge
+    the agents made. ValueError (one line) when a merge value in it is not one the node takes:
+    the node would have refused to start."""
     from sgreg_core.runtime.merge import MergeConfig
-    from sgreg_ros.params import parameter_file_values, pick
+    from sgreg_ros.params import ParameterError, check, params_of, parameter_values_for
 
+    if params is None:
+        return MergeConfig()
+    try:
+        values = parameter_values_for(params.decode(), f"/{agent}/registration")
+    except UnicodeDecodeError:
+        raise ValueError("parameter file: not text") from None
+    picked = {}
+    for p in params_of(MergeConfig):
+        if p.name in values:
+            try:
+                picked[p.name] = check(p, values[p.name])
+            except ParameterError as exc:
+                raise ValueError(f"parameter file: {exc}") from None
+    return MergeConfig(**picked)
+
+
+def read_params(params_file: str | Path | None) -> bytes | None:
+    """The bytes of the parameter file nodes started with params_file read (None: the shipped
+    one), None when there is none; OSError when it cannot be read."""
     path = params_file or DEFAULT_PARAMS
-    return MergeConfig() if path is None else MergeConfig(**pick(MergeConfig, parameter_file_values(path)))
+    return None if path is None else Path(path).read_bytes()
 
 
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,

@@ -212,7 +212,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                                     evidence={"objects": int(msg.inlier_objects),
                                               "fitness": float(msg.fitness),
                                               "ambiguity": float(msg.ambiguity)},
-                                    link=msg.link))
+                                    link=msg.link,
+                                    stamp_ns=msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec))
 
     def on_diagnostics(msg: DiagnosticArray):
         for status in msg.status:

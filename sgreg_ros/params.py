@@ -127,55 +127,81 @@ def unknown_parameters(given: Iterable[str], known: Iterable[str]) -> list[str]:
 
 
 def parameter_file_names(path) -> set[str]:
-    """The parameter names a ROS parameter file gives sgreg's nodes (see parameter_file_values);
-    ValueError when the file is not a parameter file."""
-    return set(parameter_file_values(path))
-
-
-def parameter_file_values(path) -> dict:
-    """The parameters a ROS parameter file gives sgreg's nodes, name -> value (nested mappings
-    under ros__parameters named with dots, as ROS does): those of its blocks for any node,
-    `agent` or `registration` (a file shared with other nodes may name theirs; a later block
-    wins, as in ROS); ValueError when the file is not a parameter file."""
+    """The parameter names a ROS parameter file gives sgreg's nodes: those of its blocks for
+    any node, or for one named `agent` or `registration` in any namespace (a file shared with
+    other nodes may name theirs); ValueError when the file is not a parameter file."""
     from pathlib import Path
 
+    return {name for node, params in parameter_blocks(_read_text(Path(path)))
+            if node.rstrip("/").rsplit("/", 1)[-1] in ("**", "*", "agent", "registration")
+            for name in params}
+
+
+def parameter_values_for(text: str, node: str) -> dict:
+    """name -> value that a ROS parameter file (its text) gives the node of fully qualified
+    name `node` (e.g. /a/registration): its blocks whose node name matches, a later block
+    winning, as ROS applies them; ValueError when it is not a parameter file."""
+    values: dict = {}
+    for pattern, params in parameter_blocks(text):
+        if _node_matches(pattern, node):
+            values.update(params)
+    return values
+
+
+def parameter_blocks(text: str) -> list[tuple[str, dict]]:
+    """(node name as the file gives it, e.g. /** or /a/registration, its parameters with
+    nested mappings named with dots, as ROS does) per ros__parameters block of a ROS parameter
+    file's text; ValueError when it is not a parameter file."""
     import yaml
 
     try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except UnicodeDecodeError:
-        raise ValueError("not text") from None
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         raise ValueError(f"not YAML ({getattr(exc, 'problem', None) or 'unreadable'}{where})") from None
-    blocks: list[tuple[str, dict]] = []      # (node key, its ros__parameters)
+    blocks: list[tuple[str, dict]] = []
 
-    def walk(node, key: str) -> None:
+    def walk(node, path: str) -> None:
         if isinstance(node, dict):
             for k, v in node.items():
                 if k == "ros__parameters" and isinstance(v, dict):
-                    blocks.append((key, v))
-                else:
-                    walk(v, str(k))
+                    blocks.append((path, flat(v, "")))
+                else:      # nested namespaces: {a: {registration: {ros__parameters: ...}}}
+                    walk(v, f"{path}/{str(k).strip('/')}" if path else str(k))
+
+    def flat(params: dict, prefix: str) -> dict:
+        out = {}
+        for k, v in params.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+        return out
 
     walk(doc, "")
     if not blocks:
         raise ValueError("no 'ros__parameters' mapping in it (a ROS parameter file: "
                          "/**: {ros__parameters: {name: value}})")
-    values: dict = {}
+    return blocks
 
-    def flat(params: dict, prefix: str) -> None:
-        for k, v in params.items():
-            if isinstance(v, dict):
-                flat(v, f"{prefix}{k}.")
-            else:
-                values[f"{prefix}{k}"] = v
 
-    for key, params in blocks:
-        if key.rstrip("/").rsplit("/", 1)[-1] in ("**", "*", "agent", "registration"):
-            flat(params, "")
-    return values
+def _node_matches(pattern: str, node: str) -> bool:
+    """Whether a parameter file's node name matches a fully qualified node name: "*" stands
+    for one name, "**" for any number of them (ROS's wildcards); a name without its leading
+    slash is taken as fully qualified, as ROS does."""
+    def match(p: list[str], n: list[str]) -> bool:
+        if not p:
+            return not n
+        if p[0] == "**":
+            return any(match(p[1:], n[i:]) for i in range(len(n) + 1))
+        return bool(n) and p[0] in ("*", n[0]) and match(p[1:], n[1:])
+
+    return match([t for t in pattern.split("/") if t], [t for t in node.split("/") if t])
+
+
+def _read_text(path) -> str:
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise ValueError("not text") from None
 
 
 def overrides_of(node) -> dict:

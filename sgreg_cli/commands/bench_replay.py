@@ -142,8 +142,9 @@ def _offline_config(overrides: list[str]):
     return from_dict(OfflineReplayConfig, apply_overrides(to_dict(OfflineReplayConfig()), overrides))
 
 
-def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
-    """The report of one bag, scored against its checked ground truth gt (_ensure_bag)."""
+def _replay(job, gt: dict, backend: str, args, model, out_dir: Path, params: bytes) -> dict:
+    """The report of one bag, scored against its checked ground truth gt (_ensure_bag); params:
+    the parameter file the ROS nodes read (b"": none)."""
     from sgreg_core.bench.merge_score import merge_report
     from sgreg_core.bench.replay_score import score_replay
     from sgreg_core.bench.replay_report import replay_report
@@ -163,6 +164,9 @@ def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
     from ..processes import merge_config_of
     from ..replay import ReplayConfig, run_replay
 
+    # the merge the agents run, read before the replay so that a value they refuse stops it
+    merge_cfg = merge_config_of(params or None, min(gt["T_scene_map"]))
+
     # a short tail: a suite scores registration; `sgreg replay` measures the quiet link
     cfg = ReplayConfig(params_file=args.params_file, tail_s=6.0,
                        overrides={"weights_path": args.weights} if args.weights else {},
@@ -171,7 +175,7 @@ def _replay(job, gt: dict, backend: str, args, model, out_dir: Path) -> dict:
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
     return replay_report(job.path, score, run_, {"backend": "ros", "params_file": args.params_file,
                                                  "overrides": cfg.overrides},
-                         merge=merge_report(run_.records, gt["T_scene_map"], cfg=merge_config_of(args.params_file))[1])
+                         merge=merge_report(run_.records, gt["T_scene_map"], cfg=merge_cfg)[1])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -225,6 +229,15 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
 
+    if args.backend == "ros":       # a merge value the nodes refuse stops the suite before it starts
+        from ..processes import merge_config_of
+
+        try:
+            merge_config_of(params or None, "a")
+        except ValueError as exc:
+            print(f"sgreg bench-replay: {params_file}: {exc}", file=sys.stderr)
+            return 2
+
     def log(s: str) -> None:
         print(f"[bench-replay] {s}", flush=True)
 
@@ -272,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         t0 = time.monotonic()
         try:
-            report = _replay(job, truths[job.name], args.backend, args, model, out)
+            report = _replay(job, truths[job.name], args.backend, args, model, out, params)
         except (RuntimeError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2

@@ -40,7 +40,7 @@ def _fmt_T(T) -> str:
 def run(args) -> int:
 
     from ..bags import BagError
-    from ..processes import merge_config_of
+    from ..processes import merge_config_of, read_params
     from ..replay import ReplayConfig, ground_truth_of, run_replay
 
     from sgreg_core.bench.bandwidth import HEADER, format_table
@@ -59,6 +59,8 @@ def run(args) -> int:
         if args.png:
             figure_path(args.png)
         gt = ground_truth_of(args.bag)
+        # the merge the agents run, read before the replay: a value they refuse stops it here
+        merge_cfg = merge_config_of(read_params(args.params_file), min(gt["T_scene_map"]))
     except (BagError, OSError, ValueError) as exc:
         print(f"sgreg replay: {exc}", file=sys.stderr)
         return 2
@@ -88,7 +90,6 @@ def run(args) -> int:
         print(f"sgreg replay: {exc}{where}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
-    merge_cfg = merge_config_of(cfg.params_file)
     tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == merge_cfg.merged_frame}
     merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None, cfg=merge_cfg)
     merge["published_on_tf"] = bool(tf_poses)

@@ -46,7 +46,9 @@ def merge_report(records, T_scene_map: dict, poses: dict | None = None, hold_s: 
     for i, r in enumerate(records):
         # a result that states no confidence (older bags) weighs as a sure one
         confidence = r.confidence if np.isfinite(r.confidence) else 1.0
-        merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, confidence, seconds_to_ns(stamp[i]))
+        # links age by their maps' stamps, as in the nodes (older records: their bag time)
+        merger.take(r.agent, r.peer, r.T, r.verified, r.reason, r.link, confidence,
+                    r.stamp_ns if r.stamp_ns is not None else seconds_to_ns(stamp[i]))
         if i + 1 < len(records) and stamp[i + 1] == stamp[i]:
             continue                      # results of one instant are merged together
         merger.update()

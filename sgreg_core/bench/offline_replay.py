@@ -100,7 +100,7 @@ def offline_replay(maps: list[tuple[float, str, InstanceMap]], model: SGRegModel
                                         node_matches=est.node_matches, inliers=est.inliers,
                                         total_ms=float(est.timing_ms.get("total", 0.0)),
                                         confidence=est.confidence, bag_t=now,
-                                        evidence=est.evidence, link=est.link))
+                                        evidence=est.evidence, link=est.link, stamp_ns=est.stamp_ns))
 
     while events:
         now, kind, _, name, imap = heapq.heappop(events)

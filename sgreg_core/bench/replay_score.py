@@ -39,6 +39,7 @@ class ResultRecord:
     bag_t: float | None = None   # bag time (s, the bag's simulation clock) the frame falls at
     evidence: dict = field(default_factory=dict)   # the verdict's evidence, as far as known
     link: str = ""        # the link's state after the estimate (none, candidate, confirmed)
+    stamp_ns: int | None = None   # the result's stamp: of the newer map it was made from
 
 
 @dataclass
@@ -171,6 +172,8 @@ def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict |
             first_reg = next((f.t for f in fs if f.registrable), None)
             first_ok = next((f for f in fs if f.success), None)
             since = registrable_since(objects, agent, peer, min_shared_objects)
+            if since is not None and fs[-1].bag_t is not None and since > fs[-1].bag_t:
+                since = None      # registrable only after the link's last result: not asked
             # counted from when the maps could first be registered, not from the link's first
             # registrable frame: a link that publishes nothing for a while is charged for it
             delay = None

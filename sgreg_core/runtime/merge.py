@@ -202,14 +202,15 @@ def _consistent(A: np.ndarray, B: np.ndarray, cfg: MergeConfig) -> bool:
 
 
 class _Forest:
-    """The accepted links as a graph (one edge per pair, its first accepted measurement), and a
-    spanning forest of it in which each agent keeps its pose in its tree's root (T_agent^root):
-    the path transform between two joined agents is one product, and joining two trees
+    """The accepted links: one edge per pair (its first accepted measurement), and a spanning
+    forest of them in which each agent keeps its pose in its tree's root (T_agent^root). The
+    path transform between two joined agents is then one product, and joining two trees
     re-poses the smaller one, so a fleet of n agents checks its n^2 links at O(1) each. The
-    graph is walked only for a rejected link, to name the links on its path."""
+    forest's links are walked only for a rejected link, to name those on the path it broke."""
 
     def __init__(self, names: list[str]):
-        self.graph: dict[str, dict[str, Link]] = {a: {} for a in names}
+        self.graph: dict[str, dict[str, Link]] = {a: {} for a in names}    # every pair's edge
+        self.tree: dict[str, dict[str, Link]] = {a: {} for a in names}     # the spanning edges
         self.root = {a: a for a in names}
         self.members = {a: [a] for a in names}
         self.P = {a: np.eye(4) for a in names}       # T_agent^root
@@ -226,11 +227,12 @@ class _Forest:
         return invert_transform(self.P[b]) @ self.P[a]
 
     def path_links(self, a: str, b: str) -> list[Link]:
-        """The links on a path of the graph from a to b (a and b joined)."""
+        """The links on the forest's path from a to b (a and b joined): the path path_T composes
+        when the pair has no edge of its own."""
         seen, stack = {a: []}, [a]
         while stack:
             x = stack.pop()
-            for y, l in self.graph[x].items():
+            for y, l in self.tree[x].items():
                 if y not in seen:
                     seen[y] = seen[x] + [l]
                     stack.append(y)
@@ -245,6 +247,7 @@ class _Forest:
         keep, move = self.root[l.src], self.root[l.dst]
         if keep == move:
             return
+        self.tree[l.src][l.dst] = self.tree[l.dst][l.src] = l
         # G maps the moved root into the kept one: T_src^keep T_dst^src T_move^dst
         G = self.P[l.src] @ invert_transform(l.T) @ invert_transform(self.P[l.dst])
         if len(self.members[keep]) < len(self.members[move]):

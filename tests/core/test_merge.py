@@ -369,26 +369,33 @@ def test_both_links_of_a_pair_get_the_same_answer_whatever_the_names():
     assert outcomes[0] == outcomes[1]
 
 
-def test_the_forest_gives_every_path_transform_and_its_links():
-    """_Forest: after links join trees in any order, path_T(a, b) is T_a^b for every joined
-    pair (the smaller tree re-posed into the larger's root), None across trees, and path_links
-    walks connected links from a to b."""
+@pytest.mark.parametrize("noise", [0.0, 2.0])
+def test_the_forest_gives_every_path_transform_and_its_links(noise):
+    """_Forest: after links join trees in any order, path_T(a, b) is the pair's own link where
+    it has one, else the product along the forest (the smaller tree re-posed into the larger's
+    root): T_a^b for exact links, None across trees; path_links walks the links of that
+    product (with noisy links another path would give another product)."""
     from sgreg_core.runtime.merge import _Forest
     rng = np.random.default_rng(5)
     names = sorted(WORLD)
     for _ in range(20):
         forest = _Forest(names)
         pairs = list(itertools.permutations(names, 2))
-        for i in rng.permutation(len(pairs))[:6]:
-            forest.add(true_link(*pairs[i]))
+        for i in rng.permutation(len(pairs))[:7]:
+            forest.add(true_link(*pairs[i], noise=noise, rng=rng))
         for a, b in pairs:
             T = forest.path_T(a, b)
             if forest.root[a] != forest.root[b]:
                 assert T is None
                 continue
-            assert np.allclose(T, invert_transform(WORLD[b]) @ WORLD[a], atol=1e-9)
-            at = a
+            if noise == 0.0:
+                assert np.allclose(T, invert_transform(WORLD[b]) @ WORLD[a], atol=1e-9)
+            if b in forest.graph[a]:
+                assert np.allclose(T, forest.graph[a][b].towards(b))
+                continue
+            at, composed = a, np.eye(4)
             for l in forest.path_links(a, b):
                 assert at in l.key
-                at = l.dst if l.src == at else l.src
-            assert at == b
+                nxt = l.dst if l.src == at else l.src
+                composed, at = l.towards(nxt) @ composed, nxt
+            assert at == b and np.allclose(composed, T, atol=1e-9)

@@ -66,6 +66,24 @@ def test_registrable_frames_and_time_to_first_success():
     # link's silence before its first registrable frame counts
     assert link["registrable_since_bag_s"] == 4.0 and link["time_to_success_s"] == 1.5
     assert score_replay(records, FRAMES).registrable_frames is None     # bags without objects
+    # registrable only after the link's last result: nothing was asked of it
+    late = {"a": objects["a"], "b": [[0.0, [7, 8]], [9.0, [1, 2, 3]]]}
+    assert score_replay(records, FRAMES, late).links["a->b"]["registrable_since_bag_s"] is None
+
+
+def test_the_merge_score_ages_links_by_their_maps_stamps_as_the_nodes_do():
+    """With max_link_age_s, a link ages against its pair's newest maps (the results' stamps),
+    not the time results come: re-estimates of unchanged maps that fail keep it."""
+    from dataclasses import replace
+
+    from sgreg_core.bench.merge_score import merge_report
+    from sgreg_core.runtime.merge import MergeConfig
+
+    gt = ground_truth(FRAMES, "a", "b")
+    records = [replace(rec(float(t), "a", "b", gt, t == 1), stamp_ns=1_000_000_000, link="confirmed",
+                       reason="ok" if t == 1 else "too_few_inliers") for t in range(1, 11)]
+    merged, score = merge_report(records, FRAMES, cfg=MergeConfig(max_link_age_s=3.0))
+    assert merged.attached == ["a", "b"] and score["links_kept"] == 1
 
 
 def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():

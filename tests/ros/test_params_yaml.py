@@ -140,15 +140,25 @@ def test_a_params_file_is_read_before_any_node_starts(tmp_path, capsys, monkeypa
         assert err.startswith(f"sgreg agents: --params-file {typo}: {words}") and err.count("\n") == 1, err
 
 
-def test_a_replay_scores_the_merge_with_the_settings_its_nodes_ran(tmp_path):
+def test_a_replay_scores_the_merge_with_the_settings_its_nodes_ran():
     """The merged-map score of `sgreg replay` / bench-replay re-runs the merger: with the merge
-    settings of the parameter file the nodes were started with, not the defaults."""
-    from sgreg_cli.processes import merge_config_of
+    settings the agent's registration node gets from the parameter file, as ROS applies its
+    blocks (wildcards, a later block winning, bare or other nodes' names not), not the
+    defaults; a value the node would refuse is a one-line error before any replay."""
+    from sgreg_cli.processes import DEFAULT_PARAMS, merge_config_of
     from sgreg_core.runtime.merge import MergeConfig
 
-    assert merge_config_of(None) == MergeConfig()         # the shipped file sets the defaults
-    params = tmp_path / "loose.yaml"
-    params.write_text("/**:\n  ros__parameters:\n    cycle_m: 3.0\n    merged_frame: world\n"
-                      "/a/registration:\n  ros__parameters:\n    cycle_deg: 12.0\n")
-    cfg = merge_config_of(params)
-    assert (cfg.cycle_m, cfg.cycle_deg, cfg.merged_frame) == (3.0, 12.0, "world")
+    assert merge_config_of(None, "a") == MergeConfig()
+    assert merge_config_of(DEFAULT_PARAMS.read_bytes(), "a") == MergeConfig()   # the shipped file
+    params = (b"/**:\n  ros__parameters:\n    cycle_m: 3.0\n    merged_frame: world\n"
+              b"/**/registration:\n  ros__parameters:\n    cycle_deg: 12.0\n"
+              b"/a/registration:\n  ros__parameters:\n    cycle_m: 2\n"
+              b"/**/agent:\n  ros__parameters:\n    max_link_age_s: 9.0\n"
+              b"registration:\n  ros__parameters:\n    max_link_age_s: 8.0\n")
+    a, b = merge_config_of(params, "a"), merge_config_of(params, "b")
+    assert (a.cycle_m, a.cycle_deg, a.merged_frame, a.max_link_age_s) == (2.0, 12.0, "world", 0.0)
+    assert (b.cycle_m, b.cycle_deg) == (3.0, 12.0)
+    for bad in (b"/**:\n  ros__parameters:\n    cycle_m: abc\n", b"/**:\n  ros__parameters:\n    cycle_m: -1.0\n",
+                b"not: [a parameter file\n", b"\xff\xfe"):
+        with pytest.raises(ValueError):
+            merge_config_of(bad, "a")
