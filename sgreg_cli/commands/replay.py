@@ -37,6 +37,13 @@ def _fmt_T(T) -> str:
     return "\n".join("  [" + "  ".join(f"{v:8.3f}" for v in row) + "]" for row in T)
 
 
+def _time_to_success(links: dict) -> str:
+    """Per link registrable by ground truth: the seconds to its first success, or never."""
+    parts = [f"{name} " + ("never" if link["time_to_success_s"] is None else f"{link['time_to_success_s']:.1f} s")
+             for name, link in sorted(links.items()) if link.get("registrable_since_bag_s") is not None]
+    return ", ".join(parts) or "-"
+
+
 def run(args) -> int:
 
     from ..bags import BagError
@@ -113,6 +120,7 @@ def run(args) -> int:
         ["verified estimates / wrong verified", f"{score.verified} / {score.wrong_verified}"],
         ["registrable frames not verified", _missed(report["frames"])],
         ["first success", f"{score.first_success_s:.1f} s" if score.first_success_s is not None else "never"],
+        ["time from registrable (ground truth) to first success", _time_to_success(score.links)],
         ["kB per query frame", f"{kb_per_frame:.1f}  (paper: {PAPER_KB_PER_FRAME:.0f})" if kb_per_frame is not None else "-"],
         ["coarse latency median / p90", _lat(score.coarse_latency_ms)],
         ["dense latency median / p90", _lat(score.dense_latency_ms)],
@@ -161,7 +169,7 @@ def run(args) -> int:
         plot_replay(score, run_.timeline, args.png, title=f"replay of {Path(args.bag).name}")
         merged_png = str(Path(args.png).with_name(Path(args.png).stem + "_merged.png"))
         plot_merged_map(final_maps(args.bag, gt), tf_poses or merged.poses, merged_png,
-                        title=f"merged map of {Path(args.bag).name} ({frame}: {merged.anchor}/map)",
+                        title=f"merged map of {Path(args.bag).name} ({merge_cfg.merged_frame}: {merged.anchor}/map)",
                         note=(f"max pose error {merge['max_pose_error_m']:.2f} m / "
                               f"{merge['max_pose_error_deg']:.1f} deg against the ground truth"
                               if merge["max_pose_error_m"] is not None else ""))

@@ -117,7 +117,7 @@ def plot_suite(summary: dict, out_path) -> None:
     axes[2].set_yticks(y, [])
     axes[2].invert_yaxis()
     axes[2].axvline(5, color="gray", ls="--", lw=1)
-    axes[2].set_xlabel("time from first registrable frame to first success [s]")
+    axes[2].set_xlabel("time from registrable (ground truth) to first success [s]")
     fig.tight_layout()
     fig.savefig(out_path, dpi=110)
     plt.close(fig)

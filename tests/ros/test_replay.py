@@ -38,6 +38,11 @@ def test_demo_bag_registers_within_budget_and_never_verifies_a_wrong_transform(t
     missed = {k: sum(v.values()) for k, v in replay_suite.missed(report["frames"]).items()}
     assert (f"wrong estimate: {missed['wrong_estimate']}; right, refused by the verdict: "
             f"{missed['right_refused']}; right, held by the runtime's rules: {missed['right_held']}") in stdout
+    # and how long each link took from when ground truth made it registrable
+    line = next(l for l in stdout.splitlines() if l.startswith("time from registrable"))
+    for name, link in report["links"].items():
+        assert link["registrable_since_bag_s"] is not None
+        assert f"{name} {link['time_to_success_s']:.1f} s" in line
     # both agents' nodes were measured
     assert {"a/agent", "a/registration", "b/agent", "b/registration"} <= set(report["nodes"])
     # signed messages of the fleet all checked on the other side, results included
