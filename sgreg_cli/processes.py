@@ -83,9 +83,12 @@ def merge_config_of(params: bytes | None, agent: str):
 
 def read_params(params_file: str | Path | None) -> bytes | None:
     """The bytes of the parameter file nodes started with params_file read (None: the shipped
-    one), None when there is none; OSError when it cannot be read."""
+    one), None when there is none; ValueError (one line) when it cannot be read."""
     path = params_file or DEFAULT_PARAMS
-    return None if path is None else Path(path).read_bytes()
+    try:
+        return None if path is None else Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read --params-file {path}: {exc.strerror or exc}") from None
 
 
 def node_command(executable: str, agent: str, params_file: str | Path | None = DEFAULT_PARAMS,
