@@ -218,25 +218,17 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"sgreg bench-replay: --out: {exc}", file=sys.stderr)
         return 2
-    from ..processes import DEFAULT_PARAMS
+    from ..processes import merge_config_of, read_params
 
-    # the nodes read the shipped file when given none; the offline backend reads no file
-    params_file = args.params_file or (DEFAULT_PARAMS if args.backend == "ros" else None)
+    # the nodes read the shipped file when given none; the offline backend reads none (a file
+    # given is still part of the cache key)
     try:
-        params = Path(params_file).read_bytes() if params_file else b""
-    except OSError as exc:
-        print(f"sgreg bench-replay: cannot read --params-file {args.params_file}: {exc.strerror or exc}",
-              file=sys.stderr)
-        return 2
-
-    if args.backend == "ros":       # a merge value the nodes refuse stops the suite before it starts
-        from ..processes import merge_config_of
-
-        try:
+        params = (read_params(args.params_file) if args.backend == "ros" or args.params_file else None) or b""
+        if args.backend == "ros":       # a merge value the nodes refuse stops the suite before it starts
             merge_config_of(params or None, "a")
-        except ValueError as exc:
-            print(f"sgreg bench-replay: {params_file}: {exc}", file=sys.stderr)
-            return 2
+    except ValueError as exc:
+        print(f"sgreg bench-replay: {exc}", file=sys.stderr)
+        return 2
 
     def log(s: str) -> None:
         print(f"[bench-replay] {s}", flush=True)

@@ -274,9 +274,9 @@ def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
                                 "cycles through other agents)"))
             # disputed by other agents' links when the path runs through them, or when the link
             # of the same pair it contradicts is backed by a triangle
+            # (the pair's accepted link is its edge: the other one, as this one is rejected)
             direct = l.dst in forest.graph[l.src]
-            same_pair = [m for m in accepted if set(m.key) == set(l.key)]
-            if not direct or any(triangles[m.key] for m in same_pair):
+            if not direct or triangles[forest.graph[l.src][l.dst].key]:
                 disputed.add(l.key)
             # one link against one: the rest of the path backs the accepted link's side, and
             # the two are equally backed (in a longer cycle of weak links, no single link is
