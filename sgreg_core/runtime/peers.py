@@ -52,6 +52,9 @@ withdrawn when an estimate from new data finds a competing pose nearly as well s
 With more agents, the merger (runtime/merge.py) checks every agent's links around cycles: while
 it rejects this agent's link with a peer, estimates of that link are withheld (reason
 "disputed_by_cycles"), though the link itself stays for the cycles to re-judge.
+
+What a peer's message must be before it is used is runtime/intake.py; the kept correspondences
+and the checks that they still hold, runtime/kept.py.
 """
 from __future__ import annotations
 
@@ -63,12 +66,14 @@ from typing import Callable
 import numpy as np
 
 from ..config import param
-from ..geometry import invert_transform, is_rigid, is_rotation
+from ..geometry import invert_transform, is_rigid
 from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
-from ..maps.level import MAX_TILT_DEG, Levelling, tilt_deg
-from ..pipeline import Correspondences, PipelineConfig, Registration, register_features, to_map_frames
+from ..maps.level import Levelling
+from ..pipeline import PipelineConfig, Registration, register_features, to_map_frames
 from .agent import AgentCore
+from .intake import check_message
+from .kept import Kept, centers_of, levelled_alike, median_shift, moved_between
 from .messages import DenseRequestMessage, Estimate, GraphMessage
 
 
@@ -269,38 +274,6 @@ class _PendingRequest:
 
 
 @dataclass
-class Kept:
-    """Inlier correspondences of a dense estimate (peer -> own), with the centers their nodes
-    had in each map then and both maps' levelling then, to notice when either map moves
-    under them, and the estimate's pose between the levelled graphs (peer -> own)."""
-
-    corr: Correspondences
-    peer_nodes: dict[int, np.ndarray]
-    own_nodes: dict[int, np.ndarray]
-    pose: np.ndarray
-    own_level: np.ndarray = field(default_factory=lambda: np.eye(3))
-    peer_level: np.ndarray = field(default_factory=lambda: np.eye(3))
-
-
-def _centers_of(ids: np.ndarray, node_ids: np.ndarray, centers: np.ndarray) -> dict[int, np.ndarray]:
-    index = {int(i): k for k, i in enumerate(node_ids)}
-    return {int(i): np.asarray(centers[index[int(i)]], np.float64) for i in np.unique(ids) if int(i) in index}
-
-
-def _levelled_alike(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two levelling rotations are the same (data levelled by them share a frame)."""
-    return np.allclose(a, b, atol=1e-9)
-
-
-def _median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.ndarray) -> float:
-    """Median movement of the nodes in `then` (inf when fewer than half of them are left)."""
-    now = _centers_of(np.fromiter(then, np.int64), node_ids, centers)
-    if 2 * len(now) < len(then):
-        return float("inf")
-    return float(np.median([np.linalg.norm(now[i] - then[i]) for i in now])) if now else float("inf")
-
-
-@dataclass
 class Hypothesis:
     """An estimate that passed the verdict. T: T_agent^peer; data: what it was made from (own
     graph digest, peer graph digest, "dense" or "coarse"); objects: the distinct objects among
@@ -344,12 +317,6 @@ class PeerLink:
     @property
     def state(self) -> str:
         return "confirmed" if self.confirmed else "candidate" if self.candidate else "none"
-
-
-def _numeric(a, ndim: int | None, kinds: str = "fiu") -> bool:
-    """a is a numpy array of ndim dimensions (None: any) whose dtype kind is among kinds (f:
-    float, i / u: integers)."""
-    return isinstance(a, np.ndarray) and ndim in (None, a.ndim) and a.dtype.kind in kinds
 
 
 class Peers:
@@ -573,9 +540,9 @@ class Peers:
         the points (levelled otherwise, or its nodes moved since, as for kept correspondences)."""
         msg = link.coarse
         if not (self.cfg.coarse_with_dense and self.cfg.confirm and link.confirmed is None
-                and msg is not None and _levelled_alike(msg.level, dense.level)):
+                and msg is not None and levelled_alike(msg.level, dense.level)):
             return None
-        if self._moved_between(msg, dense):
+        if moved_between(msg, dense, self.cfg.kept_max_shift_m):
             return None
         t0 = time.perf_counter()
         reg = register_features(self.model, msg.nodes, self.agent.features, link.dense_cloud,
@@ -630,7 +597,7 @@ class Peers:
     # ---- validation ----------------------------------------------------------------------
     def _accept(self, msg: GraphMessage, stream: str, now: float) -> PeerLink | None:
         """The peer's link if the message is usable; else None, with a counter and a log line."""
-        problem = self._check(msg)
+        problem = check_message(msg, self.agent, self.model, self.cfg.max_nodes, self.cfg.max_points)
         if problem is not None:
             counter, text = problem
             self.agent.refuse(counter, text)
@@ -673,48 +640,6 @@ class Peers:
         link.heard_at = now
         return link
 
-    def _check(self, msg: GraphMessage) -> tuple[str, str] | None:
-        if not msg.agent_id or msg.agent_id == self.agent.cfg.name:
-            return "bad_agent_id", f"agent id {msg.agent_id!r}"
-        if msg.weights_id != self.agent.weights_id:
-            return ("rejected_weights", f"features from weights {msg.weights_id!r}, this agent "
-                    f"runs {self.agent.weights_id!r}")
-        dense = msg.points is not None
-        # what the ROS layer decodes always has these types; a message made otherwise is checked
-        # here too, before any of it can reach the link's state
-        if not (_numeric(msg.nodes.node_ids, 1, "iu") and _numeric(msg.nodes.descriptor, None)
-                and _numeric(msg.nodes.centers, 2) and _numeric(msg.extents, 2)
-                and (not dense or (_numeric(msg.points, 2) and _numeric(msg.point_node, 1, "iu")))):
-            return "malformed_message", "node ids, features, centers, extents or points are not numeric arrays"
-        if msg.nodes.node_ids.size and msg.nodes.node_ids.max() > np.iinfo(np.int64).max:
-            return "bad_nodes", "a node id is past the largest int64"
-        n = msg.num_nodes
-        k = self.model.cfg.shape.points_per_node    # what a peer of the same weights samples per node
-        if n > self.cfg.max_nodes or (dense and msg.points.shape[0] > min(self.cfg.max_points, n * k)):
-            return ("oversized_message", f"{n} nodes / {msg.points.shape[0] if dense else 0} points "
-                    f"over max_nodes={self.cfg.max_nodes}, max_points={self.cfg.max_points} or "
-                    f"{k} per node")
-        desc, centers = msg.nodes.descriptor, msg.nodes.centers
-        if desc.ndim != 2:
-            return "bad_feature_size", f"features {desc.shape}, expected ({n}, dim)"
-        dim = self.model.cfg.match.d_match     # what every peer of the same weights sends
-        if desc.shape != (n, dim) or centers.shape != (n, 3):
-            return "bad_feature_size", f"features {desc.shape}, centers {centers.shape}, expected ({n}, {dim})"
-        if msg.extents.shape != (n, 3) or np.unique(msg.nodes.node_ids).size != n:
-            return "bad_nodes", "extents do not match the nodes, or a node id repeats"
-        if not is_rotation(msg.level) or tilt_deg(msg.level) > MAX_TILT_DEG:
-            return "bad_level", f"the levelling is not a rotation that tilts by {MAX_TILT_DEG:g} deg at most"
-        arrays = [desc, centers, msg.extents] + ([msg.points] if dense else [])
-        if not all(np.isfinite(a).all() for a in arrays):
-            return "invalid_values", "NaN or inf in features, centers, extents or points"
-        if n < self.agent.cfg.min_nodes:
-            return "too_few_nodes", f"{n} nodes (min_nodes={self.agent.cfg.min_nodes})"
-        if dense:
-            if msg.points.shape[1] != 3 or msg.point_node.shape[0] != msg.points.shape[0] \
-                    or (msg.point_node.size and (msg.point_node.min() < 0 or msg.point_node.max() >= n)):
-                return "bad_points", "points name nodes that are not in the message"
-        return None
-
     # ---- estimation ----------------------------------------------------------------------
     def _own_reference(self, peer_cloud):
         """The own map's verification cloud, when there is a peer cloud to check against it."""
@@ -743,8 +668,8 @@ class Peers:
         from moved in either map since they were kept, or either map was levelled anew (they
         are in the levelled frames of then); without kept correspondences, the cloud when the
         nodes of its dense answer moved in the peer's map."""
-        relevelled = (link.dense is not None and not _levelled_alike(link.dense.level, msg.level)) or \
-            (link.kept is not None and not _levelled_alike(link.kept.own_level, self.agent.level.R))
+        relevelled = (link.dense is not None and not levelled_alike(link.dense.level, msg.level)) or \
+            (link.kept is not None and not levelled_alike(link.kept.own_level, self.agent.level.R))
         if relevelled and (link.kept is not None or link.dense_cloud is not None):
             self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
             self._drop_dense(link)
@@ -754,30 +679,24 @@ class Peers:
         self._drop_kept_of_old_levelling(link, msg.level)
         if link.kept is None:
             # the peer's points alone: stale once the peer's frame moved under them
-            if link.dense_cloud is not None and link.dense is not None and self._moved_between(msg, link.dense):
+            if link.dense_cloud is not None and link.dense is not None \
+                    and moved_between(msg, link.dense, self.cfg.kept_max_shift_m):
                 self.log(f"dense points of {link.peer_id} dropped: their nodes moved in its map "
                          "since the dense exchange")
                 self._drop_dense(link)
             return
         own = self.agent.features
-        shift = max(_median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
-                    _median_shift(link.kept.own_nodes, own.node_ids, own.centers))
+        shift = max(median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
+                    median_shift(link.kept.own_nodes, own.node_ids, own.centers))
         if shift > self.cfg.kept_max_shift_m:
             self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
                      f"{shift:.2f} m since the dense exchange")
             self._drop_dense(link)
 
-    def _moved_between(self, graph: GraphMessage, dense: GraphMessage) -> bool:
-        """Whether the nodes of a dense answer lie more than kept_max_shift_m (median) from where
-        the peer's coarse graph puts them, or the graph has none of them: the two are not in
-        one frame."""
-        in_graph = _centers_of(dense.nodes.node_ids, graph.nodes.node_ids, graph.nodes.centers)
-        return _median_shift(in_graph, dense.nodes.node_ids, dense.nodes.centers) > self.cfg.kept_max_shift_m
-
     def _drop_kept_of_old_levelling(self, link: PeerLink, peer_level: np.ndarray) -> None:
         """Forget the kept correspondences when the peer has levelled its map anew since: they
         are in its levelled frame of then."""
-        if link.kept is not None and not _levelled_alike(link.kept.peer_level, peer_level):
+        if link.kept is not None and not levelled_alike(link.kept.peer_level, peer_level):
             link.kept = None
             self._count("kept_dropped")
 
@@ -811,8 +730,8 @@ class Peers:
             kept = None
             if dense is not None and reg.success and self.cfg.keep_correspondences:
                 corr, own = reg.inlier_corr(), self.agent.features
-                kept = Kept(corr, _centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
-                            _centers_of(corr.pairs[:, 1], own.node_ids, own.centers), reg.T_levelled.copy(),
+                kept = Kept(corr, centers_of(corr.pairs[:, 0], dense.nodes.node_ids, dense.nodes.centers),
+                            centers_of(corr.pairs[:, 1], own.node_ids, own.centers), reg.T_levelled.copy(),
                             self.agent.level.R, np.asarray(dense.level))
             kind = "dense" if reg.mode == "dense" else "coarse"
             hyp = Hypothesis(T, (self.agent.digest, peer_digest, kind), reg.mode, reg.evidence.objects,

@@ -756,6 +756,7 @@ def cut(m, keep):
     (lambda m: m.nodes.centers.__setitem__((0, 1), np.nan), "invalid_values"),
     (lambda m: cut(m, slice(0, 2)), "too_few_nodes"),
     (lambda m: cut(m, np.repeat(np.arange(m.num_nodes), 200)), "oversized_message"),
+    (lambda m: setattr(m, "agent_id", ""), "bad_agent_id"),
 ])
 def test_bad_coarse_messages_are_counted_not_raised(model, graphs, corrupt, counter):
     a, b, reg, logs = make_agents(model, graphs)
