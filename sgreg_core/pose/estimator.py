@@ -25,6 +25,10 @@ from .solvers import apply_T, fit_rigid, make_T, principal_spread, residuals
 from .verdict import Evidence, VerdictConfig, confidence, judge, support
 from .verify import CloudVerifier, ReferenceCloud, Verification, check_probe, check_rim
 
+# competing hypotheses refined by ICP at most, in search of one that stays far from the winner
+# (each costs an ICP; ICP brings most starts near the winner back onto it)
+RIVAL_TRIES = 4
+
 
 @dataclass
 class PoseConfig:
@@ -345,18 +349,25 @@ def pose_hypotheses(src: np.ndarray, ref: np.ndarray, weights: np.ndarray, bound
     return _hypotheses(src, ref, weights, bounds, cfg, gcfg, PoseResult(), _Clock())
 
 
-def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig) -> bool:
-    """T differs from T_ref by at least the competitor distance (translation or rotation)."""
-    d = np.linalg.inv(T_ref) @ T
-    angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0)))
-    return bool(np.linalg.norm(d[:3, 3]) >= cfg.competitor_m or angle >= cfg.competitor_deg)
+def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig, at: np.ndarray) -> bool:
+    """T differs from T_ref by at least the competitor distance: it places the point `at` (the
+    centre of the source data) at least competitor_m from where T_ref does, or turns by at least
+    competitor_deg. Measured at the data, not at the source frame's origin: far from the origin
+    a small turn moves the origin metres while the data barely move, and a turn about the origin
+    slides the data metres while the origin stays."""
+    p = np.append(np.asarray(at, np.float64).reshape(3), 1.0)
+    shift = np.linalg.norm((T @ p - T_ref @ p)[:3])
+    d = T_ref[:3, :3].T @ T[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1.0, 1.0)))
+    return bool(shift >= cfg.competitor_m or angle >= cfg.competitor_deg)
 
 
 def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcfg: GncConfig):
     """Hypotheses far from the winner, best supported first (inlier objects, then inliers):
     the other candidates and what GNC (or, when its inlier ratio is low, GNC over one maximum
     clique) finds in the correspondences the winner leaves unexplained."""
-    pool = [T for T in candidates if far_apart(T, T_win, cfg.verdict)]
+    at = s.mean(0)
+    pool = [T for T in candidates if far_apart(T, T_win, cfg.verdict, at)]
     rest = np.flatnonzero(~inl_win)
     if rest.size >= 3:
         gnc = gnc_tls(s[rest], r[rest], b[rest], w[rest], gcfg)
@@ -372,7 +383,7 @@ def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcf
                         pool.append(_refine(s, r, w, b, cand.T, cfg.dof))
     scored = []
     for T in pool:
-        if far_apart(T, T_win, cfg.verdict):
+        if far_apart(T, T_win, cfg.verdict, at):
             inl = residuals(T, s, r) <= b
             scored.append((int(np.unique(g[inl]).size), int(inl.sum()), T))
     scored.sort(key=lambda x: x[:2], reverse=True)
@@ -381,13 +392,21 @@ def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcf
 
 def _rival(s, r, b, g, hypotheses, T_win, verifier, cfg: PoseConfig):
     """The first competing hypothesis that stays far from the winner once ICP has refined it
-    (one that ICP brings back to the winner is the winner, seen from a worse start). Returns
-    (T, inlier objects, footprint fitness) or None."""
-    for T in hypotheses[:2]:
+    (one that ICP brings back to the winner is the winner, seen from a worse start). At most
+    RIVAL_TRIES are refined, each from a start far from those already tried (near starts end
+    where the earlier one did). Returns (T, inlier objects, footprint fitness) or None."""
+    at = s.mean(0)
+    tried: list[np.ndarray] = []
+    for T in hypotheses:
+        if len(tried) == RIVAL_TRIES:
+            break
+        if any(not far_apart(T, U, cfg.verdict, at) for U in tried):
+            continue
+        tried.append(T)
         fitness = float("nan")
         if verifier is not None and verifier.valid:
             T = refine_icp(verifier, T, cfg) if cfg.icp else T
-            if not far_apart(T, T_win, cfg.verdict):
+            if not far_apart(T, T_win, cfg.verdict, at):
                 continue
             fitness = verifier(T).footprint_fitness
         inl = residuals(T, s, r) <= b
@@ -491,7 +510,9 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
         result.footprint_share, result.footprint_fitness = ver.footprint_share, ver.footprint_fitness
     elif have_clouds:   # clouds that cannot be verified on support nothing
         ev.fitness = ev.footprint_share = 0.0
-    if plausible and judge(ev, vcfg, have_clouds) == "ok":
+    # the competitor is looked for whatever the confidence (which its ambiguity lowers): an
+    # estimate refused only for confidence may still be taken when the peer's link vouches
+    if plausible and judge(ev, replace(vcfg, min_confidence=0.0), have_clouds) == "ok":
         hypotheses = _competitors(s, r, wk, bk, gk, candidates, result.T, inl, cfg, gcfg)
         rival = _rival(s, r, bk, gk, hypotheses, result.T, verifier, cfg)
         if rival is not None:

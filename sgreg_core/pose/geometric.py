@@ -241,10 +241,11 @@ def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndar
     supported = ev.fitness >= cfg.min_fitness and ev.footprint_share >= cfg.min_footprint_share
     rival = None
     if supported:
-        far = [R for R in rivals if far_apart(R, T, pose_cfg.verdict)][: cfg.rivals]
+        at = verifier.src.mean(0)
+        far = [R for R in rivals if far_apart(R, T, pose_cfg.verdict, at)][: cfg.rivals]
         far += turned(T, verifier.src, cfg.turns_deg)
         rival = best_refined_rival(far, verifier, pose_cfg, cfg.icp_distances, cfg.icp_max_iters,
-                                   lambda R: far_apart(R, T, pose_cfg.verdict))
+                                   lambda R: far_apart(R, T, pose_cfg.verdict, at))
     if rival is not None:
         ev.competitor_fitness = rival[1]
         ev.ambiguity = ev.competitor_fitness / max(ev.fitness, 1e-9)

@@ -135,9 +135,10 @@ def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.nd
     if pairs:
         rank = np.argsort([-verifier(T).score for T in pairs], kind="stable")
         hypotheses += [pairs[i] for i in rank[: cfg.pair_poses]]
+    at = src.mean(0)
     scored, seen = [], []
     for T in hypotheses:
-        if any(not far_apart(T, S, _SAME) for S in seen):   # cliques often repeat a pose
+        if any(not far_apart(T, S, _SAME, at) for S in seen):   # cliques often repeat a pose
             continue
         seen.append(T)
         T = refine_icp_coarse_to_fine(verifier, T, pose_cfg, cfg.icp_distances, cfg.icp_max_iters)
@@ -145,7 +146,7 @@ def center_poses(src_centers: np.ndarray, ref_centers: np.ndarray, scores: np.nd
     scored.sort(key=lambda x: -x[1])
     kept: list[tuple[np.ndarray, float]] = []
     for T, score in scored:
-        if len(kept) < cfg.poses and all(far_apart(T, K, pose_cfg.verdict) for K, _ in kept):
+        if len(kept) < cfg.poses and all(far_apart(T, K, pose_cfg.verdict, at) for K, _ in kept):
             kept.append((T, score))
     return kept
 

@@ -57,7 +57,8 @@ class VerdictConfig:
                             GuidedConfig's (docs/VERDICT.md section 11).
     min_confidence:         an estimate checked against clouds needs at least this confidence.
     competitor_m, competitor_deg: a hypothesis is a competitor when it is at least this far
-                            from the winner (translation, rotation).
+                            from the winner: it places the centre of the source data this far
+                            from where the winner does, or turns by this much.
     confidence_weights:     logistic weights of (bias, log(1 + inlier objects), footprint
                             fitness, footprint share, ambiguity (capped at 1.5), inlier ratio),
                             fitted by scripts/choose_verdict.py.

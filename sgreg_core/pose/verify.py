@@ -42,7 +42,7 @@ class Verification:
     rmse: point-to-point RMSE (m) of the supported points (inf when none);
     footprint_share: share of source points that land on the reference's footprint;
     footprint_fitness: share of those on its core (Footprint.core; the whole footprint with
-    rim 0) that are supported (0 when none land on the core)."""
+    rim 0) that are supported (0 when fewer than MIN_CORE_POINTS land on the core)."""
 
     fitness: float
     overlap: float
@@ -170,6 +170,12 @@ class ReferenceCloud:
 
 
 HORIZONTAL_NZ = 0.85   # |normal z| above this: a horizontal surface (within ~32 degrees)
+# Shares of a handful of points prove nothing: a source with fewer upright surface points cannot
+# be verified, and a pose that lands fewer of them on the reference's footprint core has a
+# footprint fitness of 0 (a peer's dense answer brings hundreds; six matched points once verified
+# a pose 1.5 m off at fitness 1.0).
+MIN_SCORED_POINTS = 30
+MIN_CORE_POINTS = 10
 
 
 class CloudVerifier:
@@ -204,7 +210,7 @@ class CloudVerifier:
             normals = geometry.local_planes(self.src, NORMAL_NEIGHBOURS)[0]
             upright = np.abs(normals[:, 2]) <= HORIZONTAL_NZ
             self.scored, self.scored_normals = self.src[upright], normals[upright]
-        self.valid = self.scored.shape[0] >= 3 and self.reference.valid
+        self.valid = self.scored.shape[0] >= MIN_SCORED_POINTS and self.reference.valid
 
     def __call__(self, T: np.ndarray) -> Verification:
         if not self.valid or not np.isfinite(T).all():
@@ -227,8 +233,8 @@ class CloudVerifier:
         return Verification(fitness=float(supported.mean()), overlap=float(near.mean()),
                             score=float(score.mean()), rmse=rmse,
                             footprint_share=float(on_plan.mean()),
-                            footprint_fitness=float(supported[on_core].mean()) if on_core.any()
-                            else 0.0)
+                            footprint_fitness=float(supported[on_core].mean())
+                            if on_core.sum() >= MIN_CORE_POINTS else 0.0)
 
     def _two_sided(self, T: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """(N,) bool: the reference's footprint lies on both sides of each moved source surface

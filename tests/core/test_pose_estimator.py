@@ -535,3 +535,139 @@ def test_icp_is_taken_only_when_it_lowers_neither_fitness(monkeypatch):
         res = estimate_pose(src, ref, src_cloud=room, ref_cloud=ref_cloud, cfg=PoseConfig(icp=True))
         assert res.refined is taken
         assert pose_error(res.T, T)[0] == pytest.approx(0.8 if taken else 0.0, abs=0.05)
+
+
+# ---- twin rooms: the competitor, where it is measured, and clouds too small to judge --------
+
+def surface_grid(corner, u, v, step=0.05):
+    """Points every `step` m on the parallelogram corner + a*u + b*v, a, b in [0, 1]."""
+    corner, u, v = (np.asarray(x, np.float64) for x in (corner, u, v))
+    a = np.linspace(0.0, 1.0, int(np.linalg.norm(u) / step) + 1)
+    b = np.linspace(0.0, 1.0, int(np.linalg.norm(v) / step) + 1)
+    A, B = (m.reshape(-1, 1) for m in np.meshgrid(a, b))
+    return corner + A * u + B * v
+
+
+def furnished_room(x0, width=5.0, depth=4.0, height=2.5, cubes=((0.8, 0.8), (2.5, 1.0), (4.0, 3.0),
+                                                               (1.5, 3.0), (3.2, 2.0), (4.2, 1.0))):
+    """(walls, [cube surfaces]) of a room starting at x = x0, with 0.6 m cubes on its floor."""
+    corners = [(x0, 0.0), (x0 + width, 0.0), (x0 + width, depth), (x0, depth)]
+    up = (0.0, 0.0, height)
+    walls = np.concatenate([surface_grid((*p, 0.0), np.subtract(q, p).tolist() + [0.0], up)
+                            for p, q in zip(corners, corners[1:] + corners[:1])])
+    s = 0.6
+    def cube(x, y):
+        o = np.array([x0 + x - s / 2, y - s / 2, 0.0])
+        ex, ey, ez = np.eye(3) * s
+        return np.concatenate([surface_grid(o, ex, ey), surface_grid(o + ez, ex, ey),
+                               surface_grid(o, ex, ez), surface_grid(o + ey, ex, ez),
+                               surface_grid(o, ey, ez), surface_grid(o + ex, ey, ez)])
+    return walls, [cube(x, y) for x, y in cubes]
+
+
+def twin_rooms_case(rng, T_true, noise, twin_objects=4):
+    """The reference holds two identical rooms side by side; the source saw the first one (by
+    T_true). Correspondences: 5 objects to their own room, twin_objects to the twin room."""
+    walls_a, cubes_a = furnished_room(0.0)
+    walls_b, cubes_b = furnished_room(5.5)
+    ref_cloud = np.concatenate([walls_a, walls_b] + cubes_a + cubes_b)
+    back = np.linalg.inv(T_true)
+    seen = np.concatenate([walls_a] + cubes_a)
+    src_cloud = apply_T(back, seen) + rng.normal(0.0, noise, seen.shape)
+    src, ref, groups = [], [], []
+    for k, (own, target) in enumerate([(j, cubes_a[j]) for j in range(5)]
+                                      + [(j, cubes_b[j]) for j in range(twin_objects)]):
+        pick = rng.choice(len(target), 12, replace=False)
+        src.append(apply_T(back, cubes_a[own][pick]))
+        ref.append(target[pick])
+        groups.append(np.full(12, k))
+    return np.concatenate(src), np.concatenate(ref), np.concatenate(groups), src_cloud, ref_cloud
+
+
+def test_an_estimate_short_of_confidence_has_its_competitor_measured_too():
+    """The competitor was looked for only once every test, confidence included, had passed: an
+    estimate refused for confidence reported no tie (ambiguity 0, so a confidence too high),
+    and the runtime takes such an estimate when a peer's link vouches for it. Between twin rooms
+    (5 objects to the right room, 4 to its twin) it is a near-tie."""
+    from sgreg_core.pipeline import PipelineConfig
+    rng = np.random.default_rng(0)
+    T_true = make_T(yaw_rotation(np.radians(30.0)), [1.0, 2.0, 0.0])
+    src, ref, groups, src_cloud, ref_cloud = twin_rooms_case(rng, T_true, noise=0.05)
+    cfg = PipelineConfig().pose_config()
+    res = estimate_pose(src, ref, None, src_cloud, ref_cloud, cfg, groups=groups)
+    assert pose_error(res.T, T_true)[0] < 0.1
+    assert res.T_competitor is not None and res.evidence.ambiguity > cfg.verdict.max_ambiguity
+    assert res.reason == "ambiguous" and res.confidence < 0.5
+
+
+def test_competitors_are_told_apart_at_the_data_not_at_the_frames_origin():
+    """Data 30 m from the source frame's origin: a 2 deg turn about the data moves them 9 cm
+    (the same pose; the origin moves 1 m), a 5 deg turn about the origin slides them 2.6 m (a
+    competitor; the origin stays put)."""
+    from sgreg_core.pose.estimator import far_apart
+    cfg = VerdictConfig()
+    T = make_T(yaw_rotation(0.3), [-30.0, 5.0, 0.0])
+    data = np.array([30.0, 0.0, 1.0])
+    def turned_about(point, deg):
+        R = yaw_rotation(np.radians(deg))
+        return T @ make_T(R, point - R @ point)
+    assert not far_apart(turned_about(data, 2.0), T, cfg, data)
+    assert far_apart(turned_about(np.zeros(3), 5.0), T, cfg, data)
+    assert far_apart(turned_about(data, 12.0), T, cfg, data)      # a turn is a turn anywhere
+
+
+def test_the_rival_search_goes_past_starts_that_icp_brings_back_to_the_winner(monkeypatch):
+    """Only the first two competing hypotheses were refined: two starts that ICP brings back
+    onto the winner hid a true rival third in line (ambiguity 0)."""
+    import sgreg_core.pose.estimator as est
+    T_win = np.eye(4)
+    starts = [make_T(yaw_rotation(np.radians(d)), np.zeros(3)) for d in (40.0, 80.0, 120.0)]
+    rival = make_T(yaw_rotation(np.pi), [1.0, 0.0, 0.0])
+    refined = []
+    def icp(verifier, T, cfg):
+        refined.append(T)
+        return T_win if any(T is S for S in starts) else T
+    monkeypatch.setattr(est, "refine_icp", icp)
+
+    class Clouds:            # every pose fits its clouds alike
+        valid = True
+        def __call__(self, T):
+            return est.Verification(0.9, 0.9, 0.9, 0.01, 0.6, 0.9)
+
+    s = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [2.0, 2.0, 1.0]])
+    g = np.arange(4)
+    cfg = PoseConfig(icp=True)
+    found = est._rival(s, apply_T(rival, s), np.full(4, 0.1), g, starts + [rival], T_win, Clouds(), cfg)
+    assert found is not None and np.allclose(found[0], rival) and found[1] == 4
+    assert len(refined) == 4
+    # at most RIVAL_TRIES starts are refined, and one near a start already tried is not
+    refined.clear()
+    near = [S @ make_T(yaw_rotation(np.radians(1.0)), np.zeros(3)) for S in starts]
+    assert est._rival(s, s, np.full(4, 0.1), g, [starts[0], near[0]] + starts[1:] + [starts[0]] * 3,
+                      T_win, Clouds(), cfg) is None
+    assert len(refined) == 3
+
+
+def test_a_handful_of_source_points_verifies_nothing():
+    """Correspondences on 5 objects that agree on a pose 1.5 m off, with a source cloud of six
+    of their own points: they lie on the reference's surfaces by construction, and six points
+    scored a fitness of 1.0. A cloud this small cannot be verified."""
+    from sgreg_core.pipeline import PipelineConfig
+    from sgreg_core.pose.verify import MIN_SCORED_POINTS
+    rng = np.random.default_rng(0)
+    walls, cubes = furnished_room(0.0)
+    ref_cloud = np.concatenate([walls] + cubes)
+    T_wrong = make_T(yaw_rotation(np.radians(30.0)), [2.5, 2.0, 0.0])
+    src, ref, groups = [], [], []
+    for j in range(5):
+        pick = rng.choice(len(cubes[j]), 12, replace=False)
+        ref.append(cubes[j][pick])
+        src.append(apply_T(np.linalg.inv(T_wrong), cubes[j][pick]))
+        groups.append(np.full(12, j))
+    src, ref, groups = map(np.concatenate, (src, ref, groups))
+    cfg = PipelineConfig().pose_config()
+    res = estimate_pose(src, ref, None, src[:6], ref_cloud, cfg, groups=groups)
+    assert res.reason == "verification_failed" and not res.success
+    wall_points = walls[rng.choice(len(walls), 4 * MIN_SCORED_POINTS, replace=False)]
+    assert CloudVerifier(wall_points, ref_cloud).valid
+    assert not CloudVerifier(wall_points[: MIN_SCORED_POINTS - 1], ref_cloud).valid
