@@ -509,17 +509,21 @@ def _repeat(T: np.ndarray, src_feats: NodeFeatures, ref_feats: NodeFeatures, src
     """How well the reference hosts the source elsewhere than at T: the best look-alike
     placement's footprint fitness over T's (pose/repeats.py), on pose_cfg's verification. NaN
     (taken as a repeat) when it cannot be told: fewer than rcfg.min_support source nodes land
-    on look-alikes at T, the look-alikes fix no pose far from T, or a cloud is malformed."""
+    on look-alikes at T, the look-alikes fix no pose far from T, or the clouds cannot judge T
+    (a cloud malformed or too small on this verification's sample, or T's footprint fitness 0:
+    a ratio over nothing would read as no repeat)."""
     verifier = cloud_verifier(src_cloud, ref_cloud,
                               replace(pose_cfg, verify_max_points=rcfg.verify_max_points))
-    if verifier is None:
+    if verifier is None or not verifier.valid:
         return float("nan")
     place = placements(T, src_feats.centers, src_feats.descriptor, ref_feats.centers,
                        ref_feats.descriptor, rcfg)
     if place.support < rcfg.min_support or not place.hypotheses:
         return float("nan")
     own = verifier(T).footprint_fitness
-    return rival_fitness(place, T, verifier, pose_cfg, rcfg) / max(own, 1e-9)
+    if not own > 0:
+        return float("nan")
+    return rival_fitness(place, T, verifier, pose_cfg, rcfg) / own
 
 
 def _finish(out: Registration, timings: dict, t_start: float, own_total: bool) -> Registration:

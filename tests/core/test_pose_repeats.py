@@ -4,6 +4,7 @@ unrepeated maps apply only where no rival comes close."""
 import numpy as np
 import pytest
 
+from sgreg_core.pipeline import PipelineConfig
 from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T, yaw_rotation
 from sgreg_core.pose.repeats import RepeatConfig, placements, rival_fitness
 
@@ -90,7 +91,7 @@ def test_the_pipeline_relaxes_its_gates_only_where_the_reference_does_not_repeat
     from dataclasses import replace
 
     from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
-    from sgreg_core.pipeline import PipelineConfig, register_features
+    from sgreg_core.pipeline import register_features
     from sgreg_core.pose.geometric import GeometricConfig
     from test_pose_guided import K, sample
 
@@ -188,3 +189,35 @@ def test_a_large_graph_is_placed_from_a_sample_of_its_pairs():
     assert place.support == n and 0 < place.hypotheses <= RepeatConfig().max_hypotheses
     again = placements(np.eye(4), ctr, desc, ctr, desc)
     assert [s for _, s in again.rivals] == [s for _, s in place.rivals]     # seeded
+
+
+def test_a_repeat_the_clouds_cannot_judge_is_no_proof_of_none(monkeypatch):
+    """The repeat check verifies on its own, smaller sample of the source (600 points): a source
+    of mostly floor whose sample keeps too few upright points to verify, or a pose that lands
+    none on the reference's footprint core, scored 0 for the estimate and 0 for every rival, and
+    0 / 0 read as "no repeat": the relaxed gates took the estimate. It cannot be told (NaN)."""
+    import sgreg_core.pipeline as pipeline_mod
+    from sgreg_core.pose.repeats import Placements
+    from sgreg_core.pose.verify import ReferenceCloud
+
+    step = np.arange(0.0, 10.0, 0.05)
+    X, Y = np.meshgrid(step, step)
+    floor = np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)]
+    W, Z = np.meshgrid(step, np.arange(0.0, 2.0, 0.05))
+    walls = [np.c_[W.ravel(), np.zeros(W.size), Z.ravel()], np.c_[np.zeros(W.size), W.ravel(), Z.ravel()],
+             np.c_[W.ravel(), np.full(W.size, 10.0), Z.ravel()], np.c_[np.full(W.size, 10.0), W.ravel(), Z.ravel()]]
+    pose_cfg = PipelineConfig().pose_config()
+    reference = ReferenceCloud(np.vstack([floor] + walls), pose_cfg.verify_voxel, pose_cfg.footprint_cell)
+    patch = np.arange(2.0, 8.0, 0.1)
+    Xs, Ys = np.meshgrid(patch, patch)
+    # a floor patch and a short stretch of wall near the middle of the room
+    source = np.vstack([np.c_[Xs.ravel(), Ys.ravel(), np.zeros(Xs.size)],
+                        np.c_[np.repeat(np.arange(4.0, 5.0, 0.1), 10), np.full(100, 4.0),
+                              np.tile(np.arange(0.2, 1.2, 0.1), 10)]])
+    rival = np.eye(4)
+    rival[:3, 3] = [3.0, 0.0, 0.0]
+    rcfg = RepeatConfig()
+    monkeypatch.setattr(pipeline_mod, "placements", lambda *a, **k: Placements(
+        support=9, centroid=source.mean(0), hypotheses=1, rivals=[(rival, 9)]))
+    repeat = pipeline_mod._repeat(np.eye(4), None, None, source, reference, pose_cfg, rcfg)
+    assert np.isnan(repeat)
