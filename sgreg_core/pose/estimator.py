@@ -349,17 +349,23 @@ def pose_hypotheses(src: np.ndarray, ref: np.ndarray, weights: np.ndarray, bound
     return _hypotheses(src, ref, weights, bounds, cfg, gcfg, PoseResult(), _Clock())
 
 
-def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg: VerdictConfig, at: np.ndarray) -> bool:
-    """T differs from T_ref by at least the competitor distance: it places the point `at` (the
-    centre of the source data) at least competitor_m from where T_ref does, or turns by at least
-    competitor_deg. Measured at the data, not at the source frame's origin: far from the origin
-    a small turn moves the origin metres while the data barely move, and a turn about the origin
-    slides the data metres while the origin stays."""
-    p = np.append(np.asarray(at, np.float64).reshape(3), 1.0)
-    shift = np.linalg.norm((T @ p - T_ref @ p)[:3])
-    d = T_ref[:3, :3].T @ T[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1.0, 1.0)))
-    return bool(shift >= cfg.competitor_m or angle >= cfg.competitor_deg)
+def far_apart_many(R_a, t_a, R_b, t_b, at: np.ndarray, cfg) -> np.ndarray:
+    """Poses a (R_a (..., 3, 3), t_a (..., 3)) far from poses b (broadcast): they place the point
+    `at` (the centre of the source data) at least cfg.competitor_m apart, or turn by at least
+    cfg.competitor_deg. Measured at the data, not at the source frame's origin: far from the
+    origin a small turn moves the origin metres while the data barely move, and a turn about
+    the origin slides the data metres while the origin stays."""
+    shift = np.linalg.norm((R_a - R_b) @ at + (t_a - t_b), axis=-1)
+    rel = np.einsum("...ji,...jk->...ik", R_b, R_a)
+    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+    return (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
+
+
+def far_apart(T: np.ndarray, T_ref: np.ndarray, cfg, at: np.ndarray) -> bool:
+    """T differs from T_ref by at least the competitor distance of cfg (a VerdictConfig or
+    RepeatConfig; far_apart_many)."""
+    return bool(far_apart_many(T[:3, :3], T[:3, 3], T_ref[:3, :3], T_ref[:3, 3],
+                               np.asarray(at, np.float64).reshape(3), cfg))
 
 
 def _competitors(s, r, w, b, g, candidates, T_win, inl_win, cfg: PoseConfig, gcfg: GncConfig):

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .estimator import PoseConfig, best_refined_rival
+from .estimator import PoseConfig, best_refined_rival, far_apart, far_apart_many
 from .pairs import placement_support, yaw_hypotheses
 from .verdict import REASONS
 from .verify import CloudVerifier, check_probe, check_rim
@@ -136,16 +136,6 @@ def _unit(desc: np.ndarray) -> np.ndarray:
     return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
 
 
-def _far(R_a, t_a, R_b, t_b, centroid: np.ndarray, cfg: RepeatConfig) -> np.ndarray:
-    """Placements a (R_a (H, 3, 3), t_a (H, 3)) far from b (broadcast): they put the source's
-    centroid at least competitor_m apart, or differ by competitor_deg of rotation. Measured at
-    the centroid, not at the source frame's origin, which may lie far from its nodes."""
-    shift = np.linalg.norm((R_a - R_b) @ centroid + (t_a - t_b), axis=-1)
-    rel = np.einsum("...ji,...jk->...ik", R_b, R_a)
-    turn = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
-    return (shift >= cfg.competitor_m) | (turn >= cfg.competitor_deg)
-
-
 def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
                ref_centers: np.ndarray, ref_desc: np.ndarray,
                cfg: RepeatConfig | None = None) -> Placements:
@@ -170,7 +160,7 @@ def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
     node = np.repeat(np.arange(src.shape[0]), k)
     R, t = yaw_hypotheses(np.repeat(src, k, axis=0), alike.reshape(-1, 3), node, cfg.bound,
                           cfg.min_pair_m, cfg.max_hypotheses, cfg.seed)
-    far = _far(R, t, T[:3, :3], T[:3, 3], out.centroid, cfg)
+    far = far_apart_many(R, t, T[:3, :3], T[:3, 3], out.centroid, cfg)
     R, t = R[far], t[far]
     out.hypotheses = int(R.shape[0])
     if not out.hypotheses:
@@ -188,7 +178,7 @@ def placements(T: np.ndarray, src_centers: np.ndarray, src_desc: np.ndarray,
     for h in order[np.sort(first)]:
         if len(out.rivals) == cfg.rivals or sup[h] < cfg.min_support:
             break
-        if all(_far(R[h], t[h], T_o[:3, :3], T_o[:3, 3], out.centroid, cfg)
+        if all(far_apart_many(R[h], t[h], T_o[:3, :3], T_o[:3, 3], out.centroid, cfg)
                for T_o, _ in out.rivals):
             T_h = np.eye(4)
             T_h[:3, :3], T_h[:3, 3] = R[h], t[h]
@@ -203,6 +193,5 @@ def rival_fitness(place: Placements, T: np.ndarray, verifier: CloudVerifier, pos
     estimate): how well the reference's geometry hosts the source elsewhere."""
     best = best_refined_rival([T_h for T_h, _ in place.rivals], verifier, pose_cfg,
                               cfg.icp_distances, cfg.icp_max_iters,
-                              lambda R: bool(_far(R[:3, :3], R[:3, 3], T[:3, :3], T[:3, 3],
-                                                  place.centroid, cfg)))
+                              lambda R: far_apart(R, T, cfg, place.centroid))
     return 0.0 if best is None else best[1]

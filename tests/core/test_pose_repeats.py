@@ -169,7 +169,7 @@ def test_look_alikes_that_fix_no_pose_give_no_hypothesis():
 def test_far_is_measured_at_the_nodes_not_at_a_distant_origin():
     """A source frame whose origin lies 15 m from its nodes: a 6-degree turn about that origin
     moves the nodes 1.6 m, a rival; the same turn about the nodes' centroid is none."""
-    from sgreg_core.pose.repeats import _far
+    from sgreg_core.pose.estimator import far_apart_many as _far
 
     cfg = RepeatConfig()
     centroid = np.array([15.0, 0.0, 0.5])
