@@ -140,8 +140,10 @@ def _planar_normals(pts: np.ndarray, k: int, max_planarity: float) -> np.ndarray
 
 
 def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levelling:
-    """Gravity of a map from its surfaces (see the module docstring)."""
+    """Gravity of a map from its surfaces (see the module docstring); identity when disabled."""
     cfg = cfg or LevelConfig()
+    if not cfg.enabled:
+        return Levelling(reason="disabled")
     pts = np.asarray(points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         return Levelling(ok=False, reason=f"points must have shape (N, 3), got {pts.shape}")
@@ -178,9 +180,6 @@ def estimate_level(points: np.ndarray, cfg: LevelConfig | None = None) -> Levell
 
 def level_map(imap: InstanceMap, cfg: LevelConfig | None = None) -> tuple[InstanceMap, Levelling]:
     """The map in its levelled frame, and the levelling (identity when disabled or not found)."""
-    cfg = cfg or LevelConfig()
-    if not cfg.enabled:
-        return imap, Levelling(reason="disabled")
     lev = estimate_level(imap.points, cfg)
     if np.allclose(lev.R, np.eye(3)):
         return imap, lev

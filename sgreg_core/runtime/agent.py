@@ -18,7 +18,7 @@ from ..maps.instance_map import validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
 from ..pipeline import reference_cloud
 from ..pose import PoseConfig, ReferenceCloud
-from ..maps.level import LevelConfig, Levelling, level_map
+from ..maps.level import LevelConfig, Levelling, estimate_level
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 from .clock import stamp_ns as _stamp_ns
@@ -31,6 +31,8 @@ ANSWER_SLACK = 0.1   # share of dense_min_interval_s a request may come early an
 class AgentConfig:
     """name: agent id, also the namespace of its topics.
     min_nodes: a graph with fewer nodes is not broadcast (nothing useful to match).
+    max_nodes: a map whose graph has more nodes is refused, and so is a peer's graph with more
+        (both nodes read it, so what an agent sends its peers take).
     max_points_in_map: a bigger instance map is refused (protects the node's memory and time).
     dense_min_interval_s: at most one dense answer per requester per this interval (a request
         up to ANSWER_SLACK of it early is on time: a requester that asks again as soon as this
@@ -54,6 +56,8 @@ class AgentConfig:
 
     name: str = "a"
     min_nodes: int = param(3, "graphs with fewer nodes are neither sent nor registered", 1, 1000)
+    max_nodes: int = param(2000, "graphs with more nodes are refused, own and peers'", 10, 100_000,
+                           live=True)
     max_points_in_map: int = param(2_000_000, "bigger instance maps are refused", 1000, 50_000_000)
     dense_min_interval_s: float = param(1.0, "at most one dense answer per requester per interval (a prompt "
                                         "request waits as long)",
@@ -136,11 +140,12 @@ class AgentCore:
 
     def update_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> SceneGraph:
         """Rebuild graph and features from a new instance map; raises AgentInputError."""
-        if imap.points.shape[0] > self.cfg.max_points_in_map:
-            raise AgentInputError(f"instance map has {imap.points.shape[0]} points "
+        size = len(imap.points) if hasattr(imap.points, "__len__") else 0
+        if size > self.cfg.max_points_in_map:     # before any copy of it is made
+            raise AgentInputError(f"instance map has {size} points "
                                   f"(max_points_in_map={self.cfg.max_points_in_map})")
         try:
-            validate_instance_map(imap, where=f"instance map {map_sequence}")
+            imap = validate_instance_map(imap, where=f"instance map {map_sequence}")
         except ValueError as exc:
             raise AgentInputError(str(exc)) from None
         timings: dict = {}
@@ -156,12 +161,15 @@ class AgentCore:
         if graph.num_nodes < self.cfg.min_nodes:
             raise SmallMapError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
                                 f"(min_nodes={self.cfg.min_nodes})")
+        if graph.num_nodes > self.cfg.max_nodes:   # every peer would refuse its graphs
+            raise AgentInputError(f"instance map {map_sequence} gives {graph.num_nodes} nodes "
+                                  f"(max_nodes={self.cfg.max_nodes})")
         self.set_graph(graph, map_sequence, stamp_ns, timings)
         return graph
 
     def _level(self, imap: InstanceMap) -> Levelling:
         """This map's levelling: the last one while the new estimate agrees with it."""
-        _, new = level_map(imap, self.cfg.level)
+        new = estimate_level(imap.points, self.cfg.level)
         if not new.ok:
             return self.level if self.ready else new
         drift = np.degrees(np.arccos(np.clip(float(new.up @ self.level.up), -1.0, 1.0)))

@@ -5,12 +5,13 @@ direct caller of the core, a fuzzer) is checked here too. Each refusal is a coun
 one-line reason (docs/ARCHITECTURE.md, "Failure behaviour").
 
 Public API:
-    check_message(msg, agent, model, max_nodes, max_points) -> (counter, reason) or None
+    check_message(msg, agent, model, max_points) -> (counter, reason) or None
 """
 from __future__ import annotations
 
 import numpy as np
 
+from ..maps.instance_map import points_problem
 from ..maps.level import MAX_TILT_DEG, tilt_deg
 from ..geometry import is_rotation
 from ..net.model import SGRegModel
@@ -24,10 +25,11 @@ def _numeric(a, ndim: int | None, kinds: str = "fiu") -> bool:
     return isinstance(a, np.ndarray) and ndim in (None, a.ndim) and a.dtype.kind in kinds
 
 
-def check_message(msg: GraphMessage, agent: AgentCore, model: SGRegModel, max_nodes: int,
+def check_message(msg: GraphMessage, agent: AgentCore, model: SGRegModel,
                   max_points: int) -> tuple[str, str] | None:
     """None when the agent can use msg (a peer's graph, with points when dense), else the
-    counter it is refused under and why. Sizes are those a peer of the same weights sends."""
+    counter it is refused under and why. Sizes are those a peer of the same weights sends (at
+    most agent.cfg.max_nodes nodes, each with at most the model's points per node)."""
     if not msg.agent_id or msg.agent_id == agent.cfg.name:
         return "bad_agent_id", f"agent id {msg.agent_id!r}"
     if msg.weights_id != agent.weights_id:
@@ -40,7 +42,7 @@ def check_message(msg: GraphMessage, agent: AgentCore, model: SGRegModel, max_no
         return "malformed_message", "node ids, features, centers, extents or points are not numeric arrays"
     if msg.nodes.node_ids.size and msg.nodes.node_ids.max() > np.iinfo(np.int64).max:
         return "bad_nodes", "a node id is past the largest int64"
-    n = msg.num_nodes
+    n, max_nodes = msg.num_nodes, agent.cfg.max_nodes
     k = model.cfg.shape.points_per_node    # what a peer of the same weights samples per node
     if n > max_nodes or (dense and msg.points.shape[0] > min(max_points, n * k)):
         return ("oversized_message", f"{n} nodes / {msg.points.shape[0] if dense else 0} points "
@@ -64,4 +66,9 @@ def check_message(msg: GraphMessage, agent: AgentCore, model: SGRegModel, max_no
         if msg.points.shape[1] != 3 or msg.point_node.shape[0] != msg.points.shape[0] \
                 or (msg.point_node.size and (msg.point_node.min() < 0 or msg.point_node.max() >= n)):
             return "bad_points", "points name nodes that are not in the message"
+        if msg.point_node.size and np.bincount(msg.point_node, minlength=n).max() > k:
+            return "bad_points", f"a node has more than the {k} points a peer samples per node"
+    far = points_problem(np.concatenate([centers] + ([msg.points] if dense else [])))
+    if far:   # as for the own map: grids and trees over it must fit
+        return "invalid_values", f"centers or points: {far}"
     return None

@@ -111,7 +111,8 @@ class PeersConfig:
         for every second since the last one (a quiet link in a busy fleet is not locked out).
     max_peers / peer_timeout_s: at most this many peers are kept; a peer silent for
         peer_timeout_s is forgotten (expire()).
-    max_nodes / max_points: bigger messages are refused (oversized).
+    max_points: bigger dense messages are refused (oversized; graphs with more than
+        AgentConfig.max_nodes nodes likewise).
     keep_correspondences: keep the inlier point correspondences of the link's last dense
         estimate and merge them with node-center matches when only coarse data arrives (the
         paper's scheme).
@@ -225,7 +226,6 @@ class PeersConfig:
     max_peers: int = param(16, "peers kept at most (others are refused)", 1, 1000, live=True)
     peer_timeout_s: float = param(120.0, "a peer silent for this long is forgotten", 10.0, 86400.0,
                                   live=True)
-    max_nodes: int = param(2000, "bigger graphs are refused", 10, 100_000, live=True)
     max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000, live=True)
     keep_correspondences: bool = param(True, "merge the last dense correspondences into coarse "
                                        "estimates")
@@ -511,8 +511,7 @@ class Peers:
         link = self._accept(msg, "dense", now)
         if link is None:
             return None
-        if link.pending is not None and msg.requester == self.agent.cfg.name \
-                and msg.request_sequence in (link.pending.sequence, *link.pending.earlier):
+        if self._answers_pending(link, msg):
             link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
         if not self.agent.ready:
             self._count("own_map_not_ready")
@@ -529,6 +528,22 @@ class Peers:
         # the evidence is the requested nodes' content: two answers with the same content are
         # the same data, whatever the peer's map sequence says or holds elsewhere
         return self._judge(link, reg, msg.digest, timings, t0, now, dense=msg, beside=beside)
+
+    def _answered_with_too_few(self, msg: GraphMessage) -> None:
+        """An answer to the pending request that holds too few nodes still answers it: the
+        peer no longer has the nodes asked for (its front end renumbered them), and asking
+        again for them would get the same answer, so the next request waits for new graphs.
+        (Other refused answers are asked for again: a damaged message says nothing of the
+        graphs.)"""
+        link = self.links.get(msg.agent_id)
+        if link is not None and self._answers_pending(link, msg):
+            link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
+            self._count("answer_too_few_nodes")
+
+    def _answers_pending(self, link: PeerLink, msg: GraphMessage) -> bool:
+        p = link.pending
+        return p is not None and msg.requester == self.agent.cfg.name \
+            and msg.request_sequence in (p.sequence, *p.earlier)
 
     def _coarse_beside(self, link: PeerLink, dense: GraphMessage, timings: dict,
                        now: float) -> Hypothesis | None:
@@ -597,10 +612,12 @@ class Peers:
     # ---- validation ----------------------------------------------------------------------
     def _accept(self, msg: GraphMessage, stream: str, now: float) -> PeerLink | None:
         """The peer's link if the message is usable; else None, with a counter and a log line."""
-        problem = check_message(msg, self.agent, self.model, self.cfg.max_nodes, self.cfg.max_points)
+        problem = check_message(msg, self.agent, self.model, self.cfg.max_points)
         if problem is not None:
             counter, text = problem
             self.agent.refuse(counter, text)
+            if stream == "dense" and counter == "too_few_nodes":
+                self._answered_with_too_few(msg)
             self._say_once((counter, msg.agent_id), f"{stream} graph from {msg.agent_id!r} "
                            f"(seq {msg.sequence}) refused: {text}")
             return None
@@ -665,15 +682,19 @@ class Peers:
 
     def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
         """Drop the kept correspondences and the peer's dense cloud when the nodes they come
-        from moved in either map since they were kept, or either map was levelled anew (they
-        are in the levelled frames of then); without kept correspondences, the cloud when the
-        nodes of its dense answer moved in the peer's map."""
-        relevelled = (link.dense is not None and not levelled_alike(link.dense.level, msg.level)) or \
-            (link.kept is not None and not levelled_alike(link.kept.own_level, self.agent.level.R))
-        if relevelled and (link.kept is not None or link.dense_cloud is not None):
-            self.log(f"kept correspondences with {link.peer_id} dropped: a map was levelled anew")
+        from moved in either map since they were kept, or the peer's map was levelled anew (they
+        are in its levelled frame of then); only the kept correspondences when the own map was
+        (the peer's cloud is in the peer's frame); without kept correspondences, the cloud when
+        the nodes of its dense answer moved in the peer's map."""
+        if link.dense is not None and not levelled_alike(link.dense.level, msg.level) \
+                and (link.kept is not None or link.dense_cloud is not None):
+            self.log(f"kept correspondences with {link.peer_id} dropped: its map was levelled anew")
             self._drop_dense(link)
             return
+        if link.kept is not None and not levelled_alike(link.kept.own_level, self.agent.level.R):
+            self.log(f"kept correspondences with {link.peer_id} dropped: the own map was levelled anew")
+            link.kept = None
+            self._count("kept_dropped")
         # pairs of the peer's old levelling can come back (a candidate's, confirmed after a
         # dense answer at the new one): they go, the peer's points of now stay
         self._drop_kept_of_old_levelling(link, msg.level)

@@ -936,6 +936,31 @@ def test_one_map_intake_for_both_nodes_counts_every_refusal(model):
     assert agent.map_sequence == 1                           # the refused map changed nothing
 
 
+def test_a_map_whose_graph_peers_would_refuse_is_refused_by_its_agent(model):
+    """Peers refuse graphs of more than max_nodes nodes; an agent that sent them anyway was
+    never registered, and its own diagnostics said nothing. Both nodes read one max_nodes."""
+    scene = generate_scene(1, SynthConfig(rooms=1))
+    agent = AgentCore(AgentConfig(name="a", max_nodes=10), model)
+    why = agent.take_map(scene, 1, 0)
+    assert "max_nodes=10" in why and agent.counters["bad_instance_map"] == 1 and not agent.ready
+    as_lists = InstanceMap(points=scene.points.tolist(), instance=scene.instance, labels=scene.labels)
+    assert "refused" in agent.take_map(as_lists, 2, 1)          # a refusal, not an AttributeError
+
+
+def test_peer_graphs_far_away_or_with_too_many_points_per_node_are_refused(model, graphs):
+    """As the own map: centers or points beyond MAX_COORD_M are refused (every such graph had
+    one digest); a dense answer has at most the model's points per node (more were cut
+    silently)."""
+    a, b, reg, _ = make_agents(model, graphs)
+    far = b.coarse_message(1)
+    far.nodes = replace(far.nodes, centers=far.nodes.centers + np.float32(1e30))
+    assert reg.on_coarse(far, now=0.0) == (None, None) and reg.counters["invalid_values"] == 1
+    _, req = reg.on_coarse(b.coarse_message(2), now=0.5)
+    dense = b.dense_message(1, req.node_ids, "a", req.sequence)
+    dense.point_node = np.zeros_like(dense.point_node)          # every point names node 0
+    assert reg.on_dense(dense, now=1.0) is None and reg.counters["bad_points"] == 1
+
+
 def test_a_map_too_small_to_register_is_waited_out_not_refused(model):
     """A front end's first maps hold the floor and an object or two: fewer nodes than min_nodes.
     Such a map is no bad input (no refusal, so no warning and no WARN), it changes nothing the
@@ -1111,6 +1136,41 @@ def test_kept_pairs_of_an_old_levelling_go_whichever_way_they_came_back(model, g
     link.kept = replace(link.kept, peer_level=Rotation.from_rotvec([0.0, 0.02, 0.0]).as_matrix())
     reg.on_coarse(b.coarse_message(3), now=2.0)
     assert reg.counters["kept_dropped"] == 1 and link.dense_cloud is not None
+
+
+def test_the_peers_points_stay_when_only_the_own_map_is_levelled_anew(model, graphs):
+    """The kept pairs are in both levelled frames of then and go; the peer's points are in
+    its frame, which did not change: dropping them left coarse estimates nothing to verify on
+    (no_peer_cloud_to_verify) until a new dense exchange."""
+    from scipy.spatial.transform import Rotation
+
+    a, b, reg, logs = confirmed_link(model, graphs)
+    link = reg.links["b"]
+    cloud = link.dense_cloud
+    assert link.kept is not None and cloud is not None
+    a.level = replace(a.level, R=Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix())
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert link.kept is None and reg.counters["kept_dropped"] == 1
+    assert link.dense_cloud is cloud and est.reason != "no_peer_cloud_to_verify"
+    assert any("own map was levelled anew" in line for line in logs)
+
+
+def test_an_answer_without_the_nodes_asked_for_answers_the_request(model, graphs):
+    """The peer's front end renumbered its nodes after the coarse graph the request named:
+    the answer holds none of them and is refused (too_few_nodes), and asking again for the
+    same nodes would get the same answer; the request is done, and the peer's next graph (the
+    new ids) is asked for when the interval allows."""
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(search_request_interval_s=1.0))
+    _, req = reg.on_coarse(b.coarse_message(1), now=0.0)
+    gb = graphs[1]
+    b.set_graph(replace(gb, node_ids=gb.node_ids + 1000), 2, 1)         # renumbered
+    answer = b.dense_message(1, req.node_ids, "a", req.sequence)
+    assert answer.num_nodes == 0
+    assert reg.on_dense(answer, now=0.5) is None
+    assert reg.counters["too_few_nodes"] == 1 and reg.counters["answer_too_few_nodes"] == 1
+    assert reg.links["b"].pending is None and reg.on_tick(3.0) == []   # no retry of stale ids
+    _, again = reg.on_coarse(b.coarse_message(2), now=3.0)
+    assert again is not None and set(again.node_ids) <= set(gb.node_ids + 1000)
 
 
 def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, graphs):
