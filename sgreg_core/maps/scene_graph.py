@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..config import param
 from ..geometry import pack_keys, voxel_coords
@@ -112,57 +113,60 @@ def _rotated_extents(xy: np.ndarray, starts: np.ndarray, theta: np.ndarray):
 
 
 def _object_edges(centers: np.ndarray, radius: np.ndarray, objects: np.ndarray, cfg: GraphConfig) -> np.ndarray:
+    """Pairs (i, j), i < j, of objects with |o_i - o_j| < edge_factor * max(r_i, r_j), r capped
+    at max_radius; sorted by (i, j).
+
+    A k-d tree lists the candidates within the largest threshold, so memory follows the number
+    of nearby pairs, not n^2; the rule itself is then applied to those pairs.
+    """
     idx = np.flatnonzero(objects)
     if len(idx) < 2:
         return np.zeros((0, 2), dtype=np.int64)
-    r = np.minimum(radius[idx], cfg.max_radius)
-    d = np.linalg.norm(centers[idx, None] - centers[None, idx], axis=2)
-    i, j = np.nonzero(np.triu(d < cfg.edge_factor * np.maximum(r[:, None], r[None, :]), k=1))
-    return np.stack([idx[i], idx[j]], axis=1)
-
-
-def _dilate_1d(grid: np.ndarray, axis: int) -> np.ndarray:
-    """OR of each cell with its two neighbours along `axis` (the grid has a zero border)."""
-    out = grid.copy()
-    a = [slice(None)] * 3
-    b = [slice(None)] * 3
-    a[axis], b[axis] = slice(1, None), slice(None, -1)
-    out[tuple(a)] |= grid[tuple(b)]
-    out[tuple(b)] |= grid[tuple(a)]
-    return out
+    c, r = centers[idx], np.minimum(radius[idx], cfg.max_radius)
+    # a hair wider than the largest threshold, so that the tree's rounding cannot drop a pair
+    reach = cfg.edge_factor * r.max() * (1 + 1e-9)
+    i, j = cKDTree(c).query_pairs(reach, output_type="ndarray").T
+    keep = np.linalg.norm(c[i] - c[j], axis=1) < cfg.edge_factor * np.maximum(r[i], r[j])
+    i, j = i[keep], j[keep]
+    order = np.lexsort((j, i))
+    return np.stack([idx[i[order]], idx[j[order]]], axis=1)
 
 
 def _structural_edges(points: np.ndarray, node: np.ndarray, structural: np.ndarray, cell: float) -> np.ndarray:
-    """Pairs (s, j) where a point of node j lies in one of the 27 cells around a point of s.
+    """Pairs (s, j), s structural, s != j, where a point of node j lies in one of the 27 cells
+    around a point of s (a `cell` grid anchored at the map's lowest corner); each pair once,
+    sorted by (s, j).
 
-    One dense grid over the scene holds, per cell, a 64-bit mask of the structural nodes with a
-    point there; dilating it by one cell (OR with the neighbours, axis by axis), and an
-    OR-reduction of the masks under each node's points lists the structural nodes it touches.
-    Scenes with more than 64 structural nodes take one pass per 64.
+    Only occupied cells are stored (a grid over the bounding box would grow with where a stray
+    point lies): the distinct (cell, node) pairs, sorted by a packed cell key, in which the 27
+    cells around each structural cell are found with searchsorted, as 9 ranges of 3 keys.
     """
-    lo = points.min(0) - cell
-    extent = points.max(0) + cell - lo
-    cell = max(cell, float(np.prod(extent) / 3e7) ** (1 / 3))  # keep the grid under ~30M cells
-    shape = np.floor(extent / cell).astype(np.int64) + 3
-    idx = np.floor((points - lo) / cell).astype(np.int64) + 1
-    flat = np.ravel_multi_index(idx.T, shape)
-    starts = _runs(node)
-    struct_ids = np.flatnonzero(structural)
-    pairs = []
-    for chunk in np.array_split(struct_ids, -(-len(struct_ids) // 64)):
-        bit = np.zeros(len(structural), dtype=np.uint64)
-        bit[chunk] = np.left_shift(np.uint64(1), np.arange(len(chunk), dtype=np.uint64))
-        owned = np.isin(node, chunk)
-        grid = np.zeros(shape, dtype=np.uint64)
-        np.bitwise_or.at(grid.reshape(-1), flat[owned], bit[node[owned]])
-        for axis in range(3):  # a 3x3x3 box dilation is three 1-D ones
-            grid = _dilate_1d(grid, axis)
-        touch = np.bitwise_or.reduceat(grid.reshape(-1)[flat], starts)  # (n,) masks
-        hit = (touch[:, None] >> np.arange(len(chunk), dtype=np.uint64)) & np.uint64(1)
-        j, k = np.nonzero(hit.astype(bool))
-        pairs.append(np.stack([chunk[k], j], axis=1))
-    pairs = np.concatenate(pairs).astype(np.int64)
-    return pairs[pairs[:, 0] != pairs[:, 1]]
+    vc = voxel_coords(points - (points.min(0) - cell), cell)
+    # Along each axis, shrink gaps of two or more cells to two: adjacency is unchanged and the
+    # coordinates (from 1, under twice the number of points) pack into one int64 however far
+    # apart the points lie.
+    for a in range(3):
+        u, inv = np.unique(vc[:, a], return_inverse=True)
+        vc[:, a] = np.r_[1, 1 + np.cumsum(np.minimum(np.diff(u), 2))][inv]
+    bits = [int(vc[:, a].max() + 1).bit_length() for a in range(3)]
+    key = (vc[:, 0] << (bits[1] + bits[2])) | (vc[:, 1] << bits[2]) | vc[:, 2]
+    order = np.lexsort((node, key))
+    first = order[_runs(key[order], node[order])]
+    key, node = key[first], node[first].astype(np.int64)   # distinct (cell, node), by key
+    s_key, s_node = key[structural[node]], node[structural[node]]
+    n = len(structural)
+    codes = []
+    for dx, dy in np.ndindex(3, 3):
+        # the three cells along z have consecutive keys: one key range per (dx, dy)
+        q = s_key + (((dx - 1) << (bits[1] + bits[2])) + ((dy - 1) << bits[2]))
+        lo, hi = np.searchsorted(key, q - 1, "left"), np.searchsorted(key, q + 1, "right")
+        cnt = hi - lo
+        row = np.repeat(np.arange(len(q)), cnt)                    # query of each match
+        at = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt - lo, cnt)   # its entry
+        s, j = s_node[row], node[at]
+        codes.append(s[s != j] * n + j[s != j])
+    codes = np.unique(np.concatenate(codes))
+    return np.stack([codes // n, codes % n], axis=1)
 
 
 def _empty_graph() -> SceneGraph:

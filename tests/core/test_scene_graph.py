@@ -1,11 +1,14 @@
 """Scene graph construction on hand-made maps and on a synthetic scene."""
 import time
+import tracemalloc
 
 import numpy as np
 import pytest
 
 from sgreg_core.geometry import yaw_transform, transform_points
-from sgreg_core.maps.scene_graph import GraphConfig, build_scene_graph, is_structural
+from sgreg_core.maps.scene_graph import (
+    GraphConfig, _object_edges, _structural_edges, build_scene_graph, is_structural,
+)
 from sgreg_core.types import InstanceMap
 
 
@@ -91,6 +94,79 @@ def test_synthetic_scene_graph_is_fast_and_sane(synth_scene):
     deg = np.bincount(g.edges.ravel(), minlength=g.num_nodes)
     assert (deg[g.structural] > 0).all() and (deg > 0).mean() > 0.9
     assert dt < 2.0  # generous: a shared CI core; the benchmark number is in the CLI
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_object_edges_match_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform(0, 6, (30, 3))
+    radius = rng.uniform(0.1, 3.0, 30)          # some above max_radius: the cap applies
+    objects = rng.random(30) > 0.2
+    cfg = GraphConfig()
+    r = np.minimum(radius, cfg.max_radius)
+    obj = np.flatnonzero(objects)
+    ref = [[i, j] for i in obj for j in obj
+           if i < j and np.linalg.norm(centers[i] - centers[j]) < cfg.edge_factor * max(r[i], r[j])]
+    assert 0 < len(ref) < len(obj) * (len(obj) - 1) // 2
+    assert _object_edges(centers, radius, objects, cfg).tolist() == ref   # same pairs, same order
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_structural_edges_match_brute_force(seed):
+    # dyadic coordinates and cell: the grid arithmetic is exact, points sit on cell borders too
+    rng = np.random.default_rng(seed)
+    cell = 0.25
+    points = rng.integers(0, 24, (300, 3)) * 0.125
+    points[:20] += (1e9, -1e9, 5e8)              # far off: no packed grid could span the gap
+    node = rng.integers(0, 30, 300)
+    structural = np.zeros(30, bool)
+    structural[rng.choice(30, 4, replace=False)] = True
+    c = np.floor((points - points.min(0)) / cell)
+    near = np.abs(c[:, None] - c[None]).max(2) <= 1   # 27-cell neighbourhood, point to point
+    a, b = np.nonzero(near)
+    ref = sorted({(node[x], node[y]) for x, y in zip(a, b) if structural[node[x]] and node[x] != node[y]})
+    assert len(ref) > 10
+    assert _structural_edges(points, node, structural, cell).tolist() == [list(p) for p in ref]
+
+
+def _peak_mib(fn):
+    tracemalloc.start()
+    try:
+        out = fn()
+        return out, tracemalloc.get_traced_memory()[1] / 2**20
+    finally:
+        tracemalloc.stop()
+
+
+def test_stray_points_far_away_cost_nothing():
+    # 40 labelled floor points 10 km away must not size any grid; nothing is near them
+    rng = np.random.default_rng(1)
+    floor = np.c_[rng.uniform(-3, 3, (20000, 2)), rng.normal(0, 0.005, 20000)].astype(np.float32)
+    chair = _box_surface((0, 0, 0.45), (0.5, 0.5, 0.9), n=1500)
+    lamp = _box_surface((-2, -2, 2.0), (0.3, 0.3, 0.3), n=500)
+    stray = (rng.uniform(0, 1, (40, 3)) + (1e4, 1e4, 0.5)).astype(np.float32)
+    m = _map([np.r_[floor, stray], chair, lamp], ["floor", "chair", "lamp"])
+    t0 = time.perf_counter()
+    g = build_scene_graph(m)
+    dt = time.perf_counter() - t0
+    _, peak = _peak_mib(lambda: build_scene_graph(m))
+    assert dt < 1.0 and peak < 200
+    assert g.edges.tolist() == build_scene_graph(_map([floor, chair, lamp], ["floor", "chair", "lamp"])).edges.tolist()
+
+
+def test_many_objects_without_quadratic_memory():
+    # 4000 cubes (0.2 m, r = 0.17) on an 80 x 50 grid of pitch 0.3 m: 4-neighbours link (0.3 <
+    # 2 r), diagonals (0.42) do not. A dense n x n distance matrix alone would take ~1 GB.
+    lattice = np.stack(np.meshgrid(*[np.array([-0.1, 0.0, 0.1])] * 3), -1).reshape(-1, 3)
+    cube = np.r_[lattice, lattice]                 # 54 points >= min_points
+    gx, gy = np.meshgrid(np.arange(80), np.arange(50))
+    centers = np.c_[gx.ravel() * 0.3, gy.ravel() * 0.3, np.full(4000, 0.1)]
+    m = _map([(cube + c).astype(np.float32) for c in centers], ["box"] * 4000)
+    g, peak = _peak_mib(lambda: build_scene_graph(m))
+    assert g.num_nodes == 4000 and peak < 200
+    k = np.arange(4000).reshape(50, 80)
+    ref = np.r_[np.c_[k[:, :-1].ravel(), k[:, 1:].ravel()], np.c_[k[:-1].ravel(), k[1:].ravel()]]
+    assert g.edges.tolist() == sorted(ref.tolist())
 
 
 @pytest.fixture(scope="module")
