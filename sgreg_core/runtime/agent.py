@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import param
-from ..maps.instance_map import validate_instance_map
+from ..maps.instance_map import points_problem, validate_instance_map
 from ..net.model import NodeFeatures, SGRegModel
 from ..pipeline import reference_cloud
 from ..pose import PoseConfig, ReferenceCloud
@@ -153,6 +153,9 @@ class AgentCore:
         level = self._level(imap)
         if not np.allclose(level.R, np.eye(3)):
             imap = replace(imap, points=level.apply(imap.points).astype(np.float32))
+            far = points_problem(imap.points)
+            if far:   # what the agent sends, its peers must take (they check the same bound)
+                raise AgentInputError(f"levelled map: {far}")
         timings["level"] = 1e3 * (time.perf_counter() - t0)
         t0 = time.perf_counter()
         graph = build_scene_graph(imap, self.cfg.graph)

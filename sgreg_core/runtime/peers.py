@@ -927,7 +927,8 @@ class Peers:
             ids = reg.node_pairs[order, 0]
             _, first = np.unique(ids, return_index=True)
             best = ids[np.sort(first)][: self.cfg.max_request_nodes]
-            link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
+            if len(best) >= self.agent.cfg.min_nodes:   # an answer on fewer would be refused
+                link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
         return self._send_wanted(link, now)
 
     def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:

@@ -947,6 +947,37 @@ def test_a_map_whose_graph_peers_would_refuse_is_refused_by_its_agent(model):
     assert "refused" in agent.take_map(as_lists, 2, 1)          # a refusal, not an AttributeError
 
 
+def test_a_map_that_levelling_takes_past_max_coord_is_refused_by_its_agent(model):
+    """Peers refuse centers beyond MAX_COORD_M; a map just inside it that levelling moves
+    outside was taken by its agent and then refused by every peer."""
+    from sgreg_core.geometry import MAX_COORD_M
+    from sgreg_core.simulation.noise import tilt_rotation
+
+    scene = generate_scene(6, SynthConfig(rooms=2))
+    p = scene.points.astype(np.float64)
+    p[:, 0] += MAX_COORD_M - p[:, 0].max() + 3.0          # levelled, the map reaches x = 10003 m
+    raw = p @ tilt_rotation(3.0, 90.0)[:3, :3].T          # as a robot with 3 deg of tilt maps it
+    assert np.abs(raw).max() <= MAX_COORD_M
+    agent = AgentCore(AgentConfig(name="b"), model)
+    why = agent.take_map(InstanceMap(raw.astype(np.float32), scene.instance, scene.labels), 1, 0)
+    assert why is not None and "levelled map" in why and not agent.ready
+
+
+def test_no_request_for_fewer_nodes_than_an_answer_needs(model, graphs):
+    """Node matches are each node's top 3: three matches can name two of the peer's nodes, and
+    an answer on two is refused (too_few_nodes). Such a wish is not made."""
+    from types import SimpleNamespace
+
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(search_request_interval_s=1.0))
+    reg.on_coarse(b.coarse_message(1), now=0.0)
+    link = reg.links["b"]
+    link.pending, link.wanted, link.exchanged = None, None, None
+    ids = b.features.node_ids
+    two = SimpleNamespace(node_matches=3, node_scores=np.array([0.9, 0.8, 0.7]),
+                          node_pairs=np.array([[ids[0], 1], [ids[0], 2], [ids[1], 3]]))
+    assert reg._maybe_request(link, two, now=5.0) is None and link.wanted is None
+
+
 def test_peer_graphs_far_away_or_with_too_many_points_per_node_are_refused(model, graphs):
     """As the own map: centers or points beyond MAX_COORD_M are refused (every such graph had
     one digest); a dense answer has at most the model's points per node (more were cut
