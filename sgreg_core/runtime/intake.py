@@ -68,7 +68,7 @@ def check_message(msg: GraphMessage, agent: AgentCore, model: SGRegModel,
             return "bad_points", "points name nodes that are not in the message"
         if msg.point_node.size and np.bincount(msg.point_node, minlength=n).max() > k:
             return "bad_points", f"a node has more than the {k} points a peer samples per node"
-    far = points_problem(np.concatenate([centers] + ([msg.points] if dense else [])))
+    far = points_problem(centers) or (dense and points_problem(msg.points))
     if far:   # as for the own map: grids and trees over it must fit
         return "invalid_values", f"centers or points: {far}"
     return None

@@ -512,7 +512,7 @@ class Peers:
         if link is None:
             return None
         if self._answers_pending(link, msg):
-            link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
+            self._close_request(link)
         if not self.agent.ready:
             self._count("own_map_not_ready")
             return None
@@ -537,13 +537,18 @@ class Peers:
         graphs.)"""
         link = self.links.get(msg.agent_id)
         if link is not None and self._answers_pending(link, msg):
-            link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
+            self._close_request(link)
             self._count("answer_too_few_nodes")
 
     def _answers_pending(self, link: PeerLink, msg: GraphMessage) -> bool:
         p = link.pending
         return p is not None and msg.requester == self.agent.cfg.name \
             and msg.request_sequence in (p.sequence, *p.earlier)
+
+    @staticmethod
+    def _close_request(link: PeerLink) -> None:
+        """The pending request is answered: its two graphs count as exchanged."""
+        link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
 
     def _coarse_beside(self, link: PeerLink, dense: GraphMessage, timings: dict,
                        now: float) -> Hypothesis | None:
@@ -693,8 +698,7 @@ class Peers:
             return
         if link.kept is not None and not levelled_alike(link.kept.own_level, self.agent.level.R):
             self.log(f"kept correspondences with {link.peer_id} dropped: the own map was levelled anew")
-            link.kept = None
-            self._count("kept_dropped")
+            self._drop_kept(link)
         # pairs of the peer's old levelling can come back (a candidate's, confirmed after a
         # dense answer at the new one): they go, the peer's points of now stay
         self._drop_kept_of_old_levelling(link, msg.level)
@@ -718,8 +722,11 @@ class Peers:
         """Forget the kept correspondences when the peer has levelled its map anew since: they
         are in its levelled frame of then."""
         if link.kept is not None and not levelled_alike(link.kept.peer_level, peer_level):
-            link.kept = None
-            self._count("kept_dropped")
+            self._drop_kept(link)
+
+    def _drop_kept(self, link: PeerLink) -> None:
+        self._count("kept_dropped")
+        link.kept = None
 
     def _drop_dense(self, link: PeerLink) -> None:
         """Forget the kept correspondences and the peer's points. Without them nothing about
@@ -727,9 +734,8 @@ class Peers:
         (search_request_interval_s), even for the same two graphs, rather than after the
         confirmed link's interval (a map is levelled anew several times while it is small), and
         promptly once a coarse estimate passes the verdict (prompt_request)."""
-        self._count("kept_dropped")
-        link.kept, link.dense_cloud = None, None
-        link.exchanged = None
+        self._drop_kept(link)
+        link.dense_cloud, link.exchanged = None, None
 
     def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
                t0: float, now: float, dense: GraphMessage | None = None,
