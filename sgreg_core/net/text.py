@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 import threading
 import warnings
+import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -132,8 +133,12 @@ def _read(path: Path | str | None, name: str) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as data:
             if str(data["model"]) != name:
                 return {}
-            return dict(zip(data["labels"].tolist(), data["embeddings"].astype(np.float32)))
-    except (OSError, ValueError, KeyError) as exc:   # a damaged cache is rebuilt, not fatal
+            labels, emb = data["labels"].tolist(), data["embeddings"]
+            if emb.ndim != 2 or emb.shape != (len(labels), TEXT_DIM):
+                raise ValueError(f"embeddings of shape {emb.shape} for {len(labels)} labels")
+            return dict(zip(labels, emb.astype(np.float32)))
+    # a damaged cache is rebuilt, not fatal: a truncated file raises BadZipFile, an empty one EOFError
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         warnings.warn(f"label embedding cache {path} ignored: {exc}", stacklevel=3)
         return {}
 

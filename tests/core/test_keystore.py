@@ -55,3 +55,12 @@ def test_a_known_agents_key_is_never_replaced_or_shared(tmp_path):
     with pytest.raises(KeystoreError, match="already holds a key of agent 'peer'"):
         init_keystore(tmp_path, ["peer"])
     assert {k["agent"]: k["public"] for k in list_keys(tmp_path)}["peer"] == peer
+
+
+def test_one_public_key_under_two_names_is_refused_at_load(tmp_path):
+    """A hand-copied public/ where c.pub is b's key: b's messages would be refused as another
+    agent's and b's key could speak as c. `keys add` refuses this; loading must too."""
+    init_keystore(tmp_path, ["a", "b"])
+    shutil.copy(tmp_path / "public" / "b.pub", tmp_path / "public" / "c.pub")
+    with pytest.raises(KeystoreError, match="same key"):
+        Keystore(tmp_path)

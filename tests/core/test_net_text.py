@@ -101,3 +101,22 @@ def test_table_written_and_unwritable_cache_is_a_warning(tmp_path):
     with pytest.warns(UserWarning, match="not written"):
         enc.encode(["lamp"])
     assert enc.encode(["lamp"]).shape == (1, TEXT_DIM)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "empty", "wrong_width"])
+def test_damaged_disk_cache_is_a_warning_and_rebuilt(tmp_path, damage):
+    """A cache cut short by a crash, emptied, or written with other embeddings must cost a
+    rebuild, never every encode() of the node (np.load raises BadZipFile / EOFError there)."""
+    path = tmp_path / "labels.npz"
+    TextEncoder(cache_path=path, embed_fn=CountingEmbed(), name="counting").encode(["door", "window"])
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:40])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    else:
+        np.savez(path, model=np.array("counting"), labels=np.array(["door"]),
+                 embeddings=np.zeros((1, 3), np.float32))
+    with pytest.warns(UserWarning, match="ignored"):
+        enc = TextEncoder(cache_path=path, embed_fn=CountingEmbed(), name="counting")
+    assert enc.cached_labels == []
+    assert enc.encode(["door"]).shape == (1, TEXT_DIM)
