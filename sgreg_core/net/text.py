@@ -134,7 +134,7 @@ def _read(path: Path | str | None, name: str) -> dict[str, np.ndarray]:
             if str(data["model"]) != name:
                 return {}
             labels, emb = data["labels"].tolist(), data["embeddings"]
-            if emb.ndim != 2 or emb.shape != (len(labels), TEXT_DIM):
+            if emb.shape != (len(labels), TEXT_DIM):
                 raise ValueError(f"embeddings of shape {emb.shape} for {len(labels)} labels")
             return dict(zip(labels, emb.astype(np.float32)))
     # a damaged cache is rebuilt, not fatal: a truncated file raises BadZipFile, an empty one EOFError

@@ -58,7 +58,7 @@ class Keystore:
                 kid = key_id(bytes(vk))
                 if kid in self.owners:   # either agent could sign as the other
                     raise KeystoreError(f"keystore {self.root}: public/{self.owners[kid]}.pub and "
-                                        f"{path.name} hold the same key")
+                                        f"public/{path.name} hold the same key")
                 self.owners[kid], self._verify[kid] = path.stem, vk
             for path in sorted((self.root / "private").glob("*.key")):
                 self._sign[path.stem] = SigningKey(bytes.fromhex(path.read_text().strip()))
