@@ -248,6 +248,7 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
     player = rclpy.create_node("sgreg_replay_player")
     play_result = {}
     events: list = []
+    died = None
     try:
         # ready: both nodes of every agent subscribe to its mapping/instances
         deadline = time.monotonic() + cfg.ready_timeout_s
@@ -297,6 +298,12 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                 sampler.sample()
                 fleet.look(node, names)
                 last_sample = time.monotonic()
+                dead = [p for p in procs if p.proc.poll() is not None]
+                if dead:      # its agent stopped answering: what follows would score a crash
+                    died = (f"node {dead[0].agent}/{dead[0].executable} exited with {dead[0].proc.returncode} "
+                            f"{time.monotonic() - t0:.1f} s into the replay"
+                            + (f" (log: {dead[0].log_path})" if dead[0].log_path else ""))
+                    break
             if end_at is None and not thread.is_alive():
                 if "error" in play_result:   # nothing past the damage will come: stop now
                     break
@@ -309,6 +316,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
         player.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown()
+    if died is not None:
+        raise RuntimeError(died)
     if "error" in play_result:
         raise play_result["error"]
     report = play_result.get("report")

@@ -252,7 +252,12 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, RuntimeError, ValueError) as exc:
         print(f"sgreg bench-replay: cannot load weights: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    context = {"backend": args.backend, "weights_id": model.weights_id, "source": _source_digest(),
+    # the model's settings (the .json beside the weights) as well as its tensors: a changed
+    # matching setting is another model even where the weights_id stays
+    model_config = model.cfg.to_dict()
+    context = {"backend": args.backend, "weights_id": model.weights_id,
+               "model_config": hashlib.sha256(json.dumps(model_config, sort_keys=True).encode()).hexdigest()[:16],
+               "source": _source_digest(),
                "params": hashlib.sha256(params).hexdigest()[:16], "overrides": args.overrides}
     if args.backend == "offline":
         import torch
@@ -301,6 +306,7 @@ def run(args: argparse.Namespace) -> int:
     (out / "config.json").write_text(json.dumps({
         "suite": str(Path(args.suite).resolve()), "suite_text": Path(args.suite).read_text(),
         "backend": args.backend, "weights": args.weights, "weights_id": model.weights_id,
+        "model_config": model_config,
         "params_file": args.params_file, "only": args.only, "seeds": args.seeds,
         "overrides": args.overrides,
         "offline_config": offline_cfg if args.backend == "offline" else None,

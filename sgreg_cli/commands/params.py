@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 NAME = "params"
 HELP = "write the nodes' parameter file (every parameter, its default and description)"

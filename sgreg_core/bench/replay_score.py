@@ -167,19 +167,23 @@ def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict |
         reg = [f for f in frames if f.registrable]
         score.registrable_frames = len(reg)
         score.success_rate_registrable = sum(f.success for f in reg) / len(reg) if reg else None
-        for agent, peer in sorted({(f.agent, f.peer) for f in frames}):
+        # every directed link of the bag's agents, the silent ones too: a link that published
+        # nothing while its maps could be registered is one never registered, not one left out
+        agents = sorted(str(a) for a in T_scene_map)
+        for agent, peer in sorted({(a, p) for a in agents for p in agents if a != p}
+                                  | {(f.agent, f.peer) for f in frames}):
             fs = [f for f in frames if (f.agent, f.peer) == (agent, peer)]
             first_reg = next((f.t for f in fs if f.registrable), None)
             first_ok = next((f for f in fs if f.success), None)
             since = registrable_since(objects, agent, peer, min_shared_objects)
-            if since is not None and fs[-1].bag_t is not None and since > fs[-1].bag_t:
+            if since is not None and fs and fs[-1].bag_t is not None and since > fs[-1].bag_t:
                 since = None      # registrable only after the link's last result: not asked
             # counted from when the maps could first be registered, not from the link's first
             # registrable frame: a link that publishes nothing for a while is charged for it
             delay = None
             if since is not None and first_ok is not None and first_ok.bag_t is not None:
                 delay = max(first_ok.bag_t - since, 0.0)
-            score.links[f"{agent}->{peer}"] = {"first_registrable_s": first_reg,
+            score.links[f"{agent}->{peer}"] = {"results": len(fs), "first_registrable_s": first_reg,
                                                "registrable_since_bag_s": since,
                                                "first_success_s": None if first_ok is None else first_ok.t,
                                                "time_to_success_s": delay}

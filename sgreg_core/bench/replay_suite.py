@@ -251,15 +251,21 @@ def load_suite(path: str | Path, seeds: list[int] | None = None, bag_spec: type 
                     _buildable(bag_spec, spec, f"{where}: {name}")
                 jobs.append(BagJob(name, bag_dir / name, spec, synth, room, capture, walk, int(seed)))
     # bags taken as they are have no walk to seed: other seeds leave them out
-    for entry in (doc.get("bags") or []) if seeds is None else []:
-        bag = (base / entry).resolve()
+    shipped = [(base / entry).resolve() for entry in doc.get("bags") or []]
+    for bag in shipped if seeds is None else []:
         jobs.append(BagJob(bag.name, bag, room=bag.name, capture="synthetic", walk="shipped"))
+    held_out = tuple(doc.get("held_out") or ())
+    rooms = {j.room for j in jobs} | {bag.name for bag in shipped}
+    unknown = [room for room in held_out if room not in rooms]
+    if unknown:     # a typo would report no held-out row and count the room as a training one
+        raise SuiteError(f"{where}: held_out names no room of the suite: {', '.join(map(str, unknown))} "
+                         f"(its rooms: {', '.join(sorted(rooms))})")
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         raise SuiteError(f"{where}: two bags share a name")
     if not jobs:
         raise SuiteError(f"{where} names no bags")
-    return Suite(doc.get("name") or path.stem, path, jobs, tuple(doc.get("held_out") or ()), bag_dir)
+    return Suite(doc.get("name") or path.stem, path, jobs, held_out, bag_dir)
 
 
 # ---- summary --------------------------------------------------------------------------------
@@ -310,7 +316,9 @@ def _row(results: list[dict]) -> dict:
     # links whose maps could be registered by ground truth (older results: that published a
     # registrable frame)
     reg_links = [link for link in links if link.get("registrable_since_bag_s", link["first_registrable_s"]) is not None]
-    kb = [r.get("kb_per_query_frame") for r in results]
+    # bytes over frames of the bags whose traffic was metered (replays through real nodes)
+    metered = [r for r in results if r.get("bytes_per_topic") is not None]
+    metered_frames = sum(r["query_frames"] for r in metered)
     # seconds the merged frame held a wrong link or misplaced an agent (what /tf carried)
     merged_wrong = [(r.get("merge") or {}).get("while_replayed", {}).get("wrong_s") for r in results]
     return {
@@ -325,7 +333,8 @@ def _row(results: list[dict]) -> dict:
         "merged_wrong_s": (float(sum(w for w in merged_wrong if w is not None))
                            if any(w is not None for w in merged_wrong) else None),
         "links_never_registered": int(sum(link["time_to_success_s"] is None for link in reg_links)),
-        "kb_per_query_frame": _median(kb),
+        "kb_per_query_frame": (sum(sum(r["bytes_per_topic"].values()) for r in metered) / 1e3 / metered_frames
+                               if metered_frames else None),
         "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
         "dense_latency_ms": _median(r["dense_latency_ms"]["median"] for r in results),
         "dense_requests": _requests(results),

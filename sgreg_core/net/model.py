@@ -317,8 +317,14 @@ def load_model(path: str | Path | None = None, text_encoder: TextEncoder | None 
     try:
         info = json.loads(info_path.read_text())
         model = SGRegModel(ModelConfig.from_dict(info.get("config")), text_encoder=text_encoder)
-        model.load_state_dict(load_file(str(path)))
+        state = load_file(str(path))
+        model.load_state_dict(state)
     except Exception as exc:   # bad JSON, a cut file (SafetensorError), wrong shapes: one message
         raise ValueError(f"model weights {path} (with {info_path.name}) cannot be loaded: "
                          f"{' '.join(str(exc).split())[:300]}") from None
+    # a .json beside weights of another run would lend them its settings and its name
+    stated = info.get("weights_id")
+    if stated is not None and stated != weights_id(state):
+        raise ValueError(f"model weights {path} are {weights_id(state)}, but {info_path.name} describes "
+                         f"{stated}: the two files come from different training runs")
     return model.eval()

@@ -123,6 +123,15 @@ def test_save_load_round_trip(tmp_path, text):
     assert np.array_equal(model.encode(graph).z, loaded.encode(graph).z)
     with pytest.raises(FileNotFoundError):
         load_model(tmp_path / "missing.safetensors")
+    # the .json of another run beside these weights: refused, not loaded under its name
+    other = _model(text, shape={"d_z": 8}, fusion="early")
+    with torch.no_grad():
+        other.point_matcher.dustbin += 1.0
+    other_path = tmp_path / "other" / "model.safetensors"
+    save_model(other, other_path)
+    path.with_suffix(".json").write_text(other_path.with_suffix(".json").read_text())
+    with pytest.raises(ValueError, match="come from different training runs"):
+        load_model(path, text_encoder=text)
 
 
 def test_config_round_trip_and_rejects_unknown_keys():

@@ -1,5 +1,4 @@
 """Scoring of replay results against ground truth, on hand-made records."""
-import json
 
 import numpy as np
 import pytest
@@ -69,6 +68,28 @@ def test_registrable_frames_and_time_to_first_success():
     # registrable only after the link's last result: nothing was asked of it
     late = {"a": objects["a"], "b": [[0.0, [7, 8]], [9.0, [1, 2, 3]]]}
     assert score_replay(records, FRAMES, late).links["a->b"]["registrable_since_bag_s"] is None
+
+
+def test_a_link_that_never_published_counts_as_never_registered():
+    """b never published a result for a although both maps shared objects from bag time 4: the
+    link is scored (and a suite row counts it never registered), not left out of the totals."""
+    from sgreg_core.bench.replay_suite import _row
+
+    gt = ground_truth(FRAMES, "a", "b")
+    objects = {"a": [[0.0, [1, 2, 3, 4, 5]]], "b": [[0.0, [7, 8]], [4.0, [1, 2, 3, 7, 8]]]}
+    records = [rec(t, "a", "b", gt, True) for t in (5.0, 6.0)]
+    for r in records:
+        r.bag_t = r.t
+    s = score_replay(records, FRAMES, objects)
+    silent = s.links["b->a"]
+    assert silent["results"] == 0 and silent["registrable_since_bag_s"] == 4.0
+    assert silent["first_success_s"] is None and silent["time_to_success_s"] is None
+    report = {"frames": [vars(f) for f in s.frames], "links": s.links, "wrong_verified": 0,
+              "coarse_latency_ms": s.coarse_latency_ms, "dense_latency_ms": s.dense_latency_ms}
+    assert _row([report])["links_never_registered"] == 1
+    # maps that never share enough objects ask nothing of either link
+    apart = {"a": [[0.0, [1, 2]]], "b": [[0.0, [7, 8]]]}
+    assert score_replay(records, FRAMES, apart).links["b->a"]["registrable_since_bag_s"] is None
 
 
 def test_the_merge_score_ages_links_by_their_maps_stamps_as_the_nodes_do():

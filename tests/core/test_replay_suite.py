@@ -7,7 +7,7 @@ import pytest
 from sgreg_cli.commands.make_bag import BagSpec
 
 from sgreg_core.bench.replay_suite import (BagJob, ResultCache, Suite, SuiteError, format_summary,
-                                           load_suite, missed, reliability, summarize)
+                                           load_suite, missed, summarize)
 
 SUITES = Path(__file__).resolve().parents[2] / "config" / "suites"
 
@@ -58,6 +58,9 @@ def test_every_scan_is_made_per_walk_and_seed(tmp_path):
     ("name: t\nwhatever: 1\n", "unknown keys"),
     ("name: t\n", "names no bags"),
     ("[1, 2", "cannot read"),
+    # a misspelt held-out room would quietly be counted as a training one
+    ("name: t\ndata: data\nheld_out: [scene0070]\nscans:\n  - scan: scans/x_scene0007_00\n",
+     r"held_out names no room of the suite: scene0070 \(its rooms: scene0007\)"),
 ])
 def test_bad_suites_are_refused_in_one_line(tmp_path, text, words):
     with pytest.raises(SuiteError, match=words):
@@ -163,6 +166,21 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
     # of the two registrable misses, the wrong estimate verified is wrong_verified, not a miss
     assert s["rows"]["all"]["missed"] == {"wrong_estimate": {"unknown": 1}, "right_refused": {},
                                           "right_held": {}}
+
+
+def test_kb_per_frame_is_the_bytes_of_every_bag_over_its_frames():
+    """Not a median of per-bag ratios: a short bag's heavy frames weigh as many frames as it has;
+    bags replayed without metering (offline) are left out."""
+    from sgreg_core.bench.replay_suite import _row
+
+    def metered(n_frames, n_bytes):
+        r = report([frame(True, True, True, 0.9)] * n_frames, 0, {})
+        return {**r, "query_frames": n_frames, "bytes_per_topic": {"/a/sgreg/coarse": n_bytes}}
+
+    rows = [metered(1, 9000), metered(9, 9000), metered(90, 90000)]
+    assert _row(rows)["kb_per_query_frame"] == 108.0 / 100         # the median ratio says 1.0
+    assert _row(rows + [report([frame(True, True, True, 0.9)], 0, {})])["kb_per_query_frame"] == 1.08
+    assert _row([report([frame(True, True, True, 0.9)], 0, {})])["kb_per_query_frame"] is None
 
 
 def test_misses_tell_the_estimator_from_the_verdict_and_the_runtime_rules():

@@ -65,6 +65,27 @@ def test_an_agent_that_crashes_mid_replay_recovers(tmp_path):
     assert report["wrong_verified"] == 0
 
 
+def test_a_node_that_dies_mid_replay_stops_it_with_one_line_and_no_score(tmp_path):
+    """Not a score of what the dead agent's silence looks like: the replay names the node."""
+    import psutil
+
+    proc = subprocess.Popen(SGREG + ["replay", str(BAGS / "apartment_opposite"), "--json", str(tmp_path / "r.json")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in proc.stdout:
+            if "are up; playing" in line:
+                break
+        victim = next(c for c in psutil.Process(proc.pid).children(recursive=True)
+                      if {"sgreg_ros", "registration", "__ns:=/b"} <= set(c.cmdline()))
+        victim.kill()
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2, err[-2000:]
+    assert "exited with -9" in err and "into the replay" in err and "Traceback" not in err, err[-2000:]
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_a_corrupted_message_is_reported_and_the_replay_goes_on(tmp_path):
     src, bad = BAGS / "apartment_opposite", tmp_path / "bad"
     store = typestore()
