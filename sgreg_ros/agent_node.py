@@ -75,7 +75,8 @@ class AgentNode(SgregNode):
 
     def on_instances(self, raw: bytes) -> None:
         self.map_taken(convert.take_instance_map(raw, self.core.take_map, self.core.refuse,
-                                                 self.core.cfg.name, self.stamp_clock_ns()))
+                                                 self.core.cfg.name, self.stamp_clock_ns(),
+                                                 self.core.cfg.max_points_in_map))
         if self.core.ready and not self.core.counters["coarse_sent"]:
             # the first graph goes out at once, and the timer starts over: the same graph again
             # at the next tick, a fraction of a second later, would be no new evidence to a peer
@@ -92,6 +93,11 @@ class AgentNode(SgregNode):
             self.coarse_pub.publish(self.auth.sign(msg, self.topic("sgreg/coarse")))
 
     def on_request(self, raw: bytes) -> None:
+        limit = convert.max_request_bytes(self.core.cfg.max_nodes)
+        if len(raw) > limit:     # no request names more nodes than a graph may hold
+            return self.refusal(self.core.refuse("oversized_message", f"dense request of {len(raw)} bytes "
+                                                 f"refused before decoding (max {limit})"),
+                                key="oversized request")
         try:
             msg = convert.decode(raw, DenseRequest)
             req = convert.request_from_msg(msg)

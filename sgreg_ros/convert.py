@@ -24,7 +24,7 @@ from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMess
 from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
 from sgreg_core.types import InstanceMap as CoreInstanceMap
 
-from .pointcloud import PointCloudError, pack_xyz_id, unpack_xyz_id
+from .pointcloud import POINT_STEP, PointCloudError, pack_xyz_id, unpack_xyz_id
 
 
 class ConversionError(ValueError):
@@ -58,6 +58,10 @@ def decode(raw: bytes, cls):
 # Stamps travel as integer nanoseconds, so that an output carries its map's stamp to the
 # nanosecond (float seconds of today's epoch resolve 240 ns)
 def stamp_to_ns(t: Time) -> int:
+    """ConversionError for nanosec >= 1e9: it is not a time another clock can be compared with
+    (builtin_interfaces/Time keeps the fraction below a second)."""
+    if not 0 <= int(t.nanosec) < 1_000_000_000:
+        raise ConversionError(f"stamp nanosec {int(t.nanosec)} is not below 1e9")
     return int(t.sec) * 1_000_000_000 + int(t.nanosec)
 
 
@@ -80,6 +84,9 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
     if len(msg.labels) != n or len(msg.label_scores) not in (0, n):
         raise ConversionError(f"{n} instance ids but {len(msg.labels)} labels and "
                               f"{len(msg.label_scores)} scores")
+    ids, counts = np.unique(np.asarray(msg.instance_ids, np.int64), return_counts=True)
+    if (counts > 1).any():    # which label is the instance's? taking the last would guess
+        raise ConversionError(f"instance ids repeat: {ids[counts > 1][:5].tolist()}")
     try:
         points, inst = unpack_xyz_id(msg.points, "instance")
     except PointCloudError as exc:
@@ -96,7 +103,19 @@ def instance_map_from_msg(msg: InstanceMap) -> CoreInstanceMap:
 MAX_AHEAD_S = 3600.0
 
 
-def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) -> str | None:
+# what an instance map holds besides its points (ids, labels, scores, headers) is far below this
+MAP_OVERHEAD_BYTES = 8 << 20
+# a dense request: its header, names and node ids (4 bytes each), at most max_nodes of them
+REQUEST_OVERHEAD_BYTES = 4096
+
+
+def max_request_bytes(max_nodes: int) -> int:
+    """The biggest dense request a node asking for at most max_nodes nodes can send."""
+    return REQUEST_OVERHEAD_BYTES + 4 * int(max_nodes)
+
+
+def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0,
+                      max_points: int = 0) -> str | None:
     """The one map intake of both nodes of agent `agent_id`: decode an InstanceMap and hand it
     to take(imap, sequence, stamp_ns) (AgentCore.take_map or Peers.take_own_map). Returns None,
     what take says of a map too small to use yet (agent.NotYet: no refusal), or the one-line
@@ -104,7 +123,12 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) 
     that do not decode are "malformed_message", fields that do not fit "bad_instance_map", and
     so is a map that names another agent or frame (a remapping slip: registered as the own
     map, another agent's map verifies the identity as the transform to that agent), has no
-    stamp, or is stamped more than MAX_AHEAD_S after now_ns (the node's clock; 0: not checked)."""
+    stamp, or is stamped more than MAX_AHEAD_S after now_ns (the node's clock; 0: not checked).
+    Bytes that cannot hold at most max_points points (0: not checked) are "oversized_message",
+    refused before they are decoded (a copy of them would be made first)."""
+    if max_points > 0 and len(raw) > max_points * POINT_STEP + MAP_OVERHEAD_BYTES:
+        return refuse("oversized_message", f"instance map of {len(raw) / 1e6:.1f} MB refused before decoding: "
+                                           f"more than max_points_in_map={max_points} points")
     try:
         msg = decode(raw, InstanceMap)
     except ConversionError as exc:
@@ -112,7 +136,10 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) 
     foreign = _foreign(msg, agent_id)
     if foreign:
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {foreign}")
-    stamp = stamp_to_ns(msg.header.stamp)
+    try:
+        stamp = stamp_to_ns(msg.header.stamp)
+    except ConversionError as exc:
+        return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {exc}")
     if stamp == 0:   # every result made from it would carry no time
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: header.stamp is "
                                           "0 (unset)")
@@ -124,7 +151,7 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0) 
     except ConversionError as exc:
         return refuse("bad_instance_map", f"instance map {msg.sequence} refused: {exc}")
     try:
-        return take(imap, int(msg.sequence), stamp_to_ns(msg.header.stamp))
+        return take(imap, int(msg.sequence), stamp)
     except Exception as exc:  # a bug must cost one map, not the node
         return refuse("internal_error", f"instance map {msg.sequence} failed: {exc!r}")
 
@@ -337,6 +364,18 @@ class Result:
 def result_from_msg(msg: RegistrationResult) -> Result:
     if not msg.agent_id or not msg.peer_id or msg.agent_id == msg.peer_id:
         raise ConversionError(f"result of {msg.agent_id!r} for {msg.peer_id!r}")
+    # the frames the result names are the link's: another pair's transform is not this one
+    # (empty ones are taken, as in an instance map)
+    frames = {"header.frame_id": (msg.header.frame_id, f"{msg.peer_id}/map"),
+              "transform.header.frame_id": (msg.transform.header.frame_id, f"{msg.peer_id}/map"),
+              "transform.child_frame_id": (msg.transform.child_frame_id, f"{msg.agent_id}/map")}
+    for name, (value, want) in frames.items():
+        if value and value.lstrip("/") != want:
+            raise ConversionError(f"{name} is {value!r}, not {want!r}")
+    r = msg.transform.transform.rotation
+    q = np.array([r.x, r.y, r.z, r.w], np.float64)
+    if not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1.0) > 1e-3:   # not normalised away
+        raise ConversionError(f"transform rotation is not a unit quaternion: {q.tolist()}")
     T = transform_from_msg(msg.transform)
     if not np.isfinite(T).all() or not np.isfinite(msg.confidence):
         raise ConversionError("NaN or inf in the transform or the confidence")

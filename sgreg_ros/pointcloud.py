@@ -57,6 +57,11 @@ def unpack_xyz_id(msg: PointCloud2, id_field: str) -> tuple[np.ndarray, np.ndarr
             raise PointCloudError(f"PointCloud2 has no '{name}' field")
         if offsets[name][1] != datatype:
             raise PointCloudError(f"PointCloud2 field '{name}' has datatype {offsets[name][1]}")
+    # which of two fields of one name is meant, or what the other values of a field with count
+    # > 1 are, nobody can say: such a cloud is refused, not read one way
+    named = [f.name for f in msg.fields if f.name in want]
+    if len(named) != len(want) or any(f.count != 1 for f in msg.fields if f.name in want):
+        raise PointCloudError(f"PointCloud2 fields {sorted(want)} must each appear once with count 1")
     if msg.is_bigendian:
         raise PointCloudError("big-endian PointCloud2 is not supported")
     n = int(msg.width) * int(msg.height)
@@ -64,7 +69,8 @@ def unpack_xyz_id(msg: PointCloud2, id_field: str) -> tuple[np.ndarray, np.ndarr
     data = bytes(msg.data) if not isinstance(msg.data, (bytes, bytearray, memoryview)) else msg.data
     if step < POINT_STEP or len(data) != n * step:
         raise PointCloudError(f"PointCloud2 data is {len(data)} bytes, expected {n} x {step}")
-    if any(not 0 <= offsets[k][0] <= step - 4 for k in want) or len({offsets[k][0] for k in want}) < 4:
+    starts = sorted(offsets[k][0] for k in want)     # 4-byte fields that must not overlap
+    if any(not 0 <= offsets[k][0] <= step - 4 for k in want) or min(np.diff(starts)) < 4:
         raise PointCloudError(f"PointCloud2 field offsets {[offsets[k][0] for k in want]} do not fit "
                               f"a point of {step} bytes")
     dtype = np.dtype({

@@ -208,7 +208,8 @@ class RegistrationNode(SgregNode):
     # ---- callbacks -----------------------------------------------------------------------
     def on_instances(self, raw: bytes) -> None:
         why = convert.take_instance_map(raw, self.peers.take_own_map, self.agent.refuse,
-                                        self.agent.cfg.name, self.stamp_clock_ns())
+                                        self.agent.cfg.name, self.stamp_clock_ns(),
+                                        self.agent.cfg.max_points_in_map)
         self.map_taken(why)
         if why is None:
             self.merger.set_level(self.name, self.agent.level.R)
