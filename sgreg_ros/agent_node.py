@@ -20,7 +20,7 @@ from sgreg_core.runtime.wire import ENCODINGS
 
 from . import convert, qos
 from .node_base import SgregNode
-from .params import params_of, pick
+from .params import ParameterError, params_of, pick
 
 
 @dataclass
@@ -45,7 +45,10 @@ class AgentNode(SgregNode):
         model = self.load_model()
         self.core = None
         if model is not None:
-            cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
+            try:
+                cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
+            except ValueError as exc:     # parameters each in range that do not fit together
+                raise ParameterError(str(exc)) from None
             self.core = AgentCore(cfg, model)
             self.core.warm_up()
             self.coarse_pub = self.create_publisher(CoarseGraph, self.topic("sgreg/coarse"), qos.COARSE)
@@ -59,6 +62,8 @@ class AgentNode(SgregNode):
         self.accept_live_parameters()
 
     def apply(self, changes: dict) -> None:
+        # the new config first: values that do not fit the others change nothing (ValueError)
+        cfg = replace(self.core.cfg, **pick(AgentConfig, changes)) if self.core is not None else None
         if "feature_encoding" in changes:
             self.encoding = ENCODINGS[changes["feature_encoding"]]
         if self.core is None:
@@ -66,9 +71,7 @@ class AgentNode(SgregNode):
         if "coarse_rate_hz" in changes:
             self.destroy_timer(self.coarse_timer)
             self.coarse_timer = self.create_timer(1.0 / changes["coarse_rate_hz"], self.on_coarse_timer)
-        core = pick(AgentConfig, changes)
-        if core:
-            self.core.cfg = replace(self.core.cfg, **core)
+        self.core.cfg = cfg
 
     def guarded(self, what: str, work) -> None:
         super().guarded(what, work, self.core.refuse)

@@ -223,6 +223,8 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
     """Check parameters set at run time against `table` and hand the valid ones to
     apply({name: value}); an invalid value is refused with its reason (rclpy refuses read-only
     ones before this runs), an integer for a float parameter taken as the double it means.
+    apply raises ValueError, before it changes anything, for values that do not fit together:
+    the change is refused with its message.
     Register after declare_and_read: rclpy runs these callbacks for declarations too."""
     from rcl_interfaces.msg import SetParametersResult
 
@@ -241,7 +243,10 @@ def accept_live_changes(node, table: list[Param], apply) -> None:
             except ParameterError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         if changes:
-            apply(changes)
+            try:
+                apply(changes)
+            except ValueError as exc:    # values that do not fit the others (min_nodes > max_nodes)
+                return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
     floats = _float_names(table)

@@ -87,10 +87,13 @@ class RegistrationNode(SgregNode):
         self.peer_entities: dict[str, list] = {}    # peer -> its publisher and subscriptions
         self.discovery_timer = None
         if model is not None:
-            agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
-            pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
-            peers_cfg = PeersConfig(**pick(PeersConfig, p),
-                                    pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
+            try:
+                agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
+                pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
+                peers_cfg = PeersConfig(**pick(PeersConfig, p),
+                                        pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
+            except ValueError as exc:     # parameters each in range that do not fit together
+                raise ParameterError(str(exc)) from None
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
@@ -154,15 +157,13 @@ class RegistrationNode(SgregNode):
     def apply(self, changes: dict) -> None:
         if self.peers is None:
             return
+        # the new configs first: values that do not fit the others change nothing (ValueError)
+        peers_cfg = replace(self.peers.cfg, **pick(PeersConfig, changes))
+        agent_cfg = replace(self.agent.cfg, **pick(AgentConfig, changes))
         if "discovery_period_s" in changes and self.discovery_timer is not None:
             self.destroy_timer(self.discovery_timer)
             self.discovery_timer = self.create_timer(changes["discovery_period_s"], self.on_discovery)
-        core = pick(PeersConfig, changes)
-        if core:
-            self.peers.cfg = replace(self.peers.cfg, **core)
-        own = pick(AgentConfig, changes)
-        if own:
-            self.agent.cfg = replace(self.agent.cfg, **own)
+        self.peers.cfg, self.agent.cfg = peers_cfg, agent_cfg
 
     # ---- peers ---------------------------------------------------------------------------
     def on_discovery(self) -> None:

@@ -72,6 +72,10 @@ class AgentConfig:
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
 
+    def __post_init__(self):
+        if self.min_nodes > self.max_nodes:   # every map would be too small or refused
+            raise ValueError(f"agent: min_nodes ({self.min_nodes}) must not exceed max_nodes ({self.max_nodes})")
+
 
 class AgentInputError(ValueError):
     """An instance map the agent refuses; the message says why in one line."""

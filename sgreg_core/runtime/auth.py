@@ -61,6 +61,10 @@ class Keystore:
                                         f"public/{path.name} hold the same key")
                 self.owners[kid], self._verify[kid] = path.stem, vk
             for path in sorted((self.root / "private").glob("*.key")):
+                mode = path.stat().st_mode & 0o777
+                if mode & 0o077:    # as ssh does: a key others can read may already speak for the agent
+                    raise KeystoreError(f"keystore {self.root}: private/{path.name} can be read by other "
+                                        f"users (mode {mode:o}); chmod 600 {path}")
                 self._sign[path.stem] = SigningKey(bytes.fromhex(path.read_text().strip()))
         except (OSError, ValueError) as exc:
             raise KeystoreError(f"keystore {self.root}: {exc}") from None
@@ -118,8 +122,9 @@ def init_keystore(root: str | Path, agents: list[str]) -> list[tuple[str, str]]:
     for agent in agents:
         sk = SigningKey.generate()
         private = root / "private" / f"{agent}.key"
-        private.write_text(bytes(sk).hex() + "\n")
-        os.chmod(private, 0o600)
+        # created 0600, never readable by others for a moment (umask can only narrow it)
+        with os.fdopen(os.open(private, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+            f.write(bytes(sk).hex() + "\n")
         (root / "public" / f"{agent}.pub").write_text(bytes(sk.verify_key).hex() + "\n")
         made.append((agent, key_id(bytes(sk.verify_key))))
     return made

@@ -64,3 +64,14 @@ def test_one_public_key_under_two_names_is_refused_at_load(tmp_path):
     shutil.copy(tmp_path / "public" / "b.pub", tmp_path / "public" / "c.pub")
     with pytest.raises(KeystoreError, match="same key"):
         Keystore(tmp_path)
+
+
+def test_a_private_key_other_users_can_read_is_refused_at_load(tmp_path):
+    """As ssh refuses such a key: whoever else can read it may already sign as the agent."""
+    import os
+
+    init_keystore(tmp_path, ["a", "b"])
+    Keystore(tmp_path).signer("a")
+    os.chmod(tmp_path / "private" / "b.key", 0o644)
+    with pytest.raises(KeystoreError, match=r"private/b.key can be read by other users \(mode 644\); chmod 600"):
+        Keystore(tmp_path)

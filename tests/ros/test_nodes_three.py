@@ -48,6 +48,9 @@ def test_three_agents_register_pairwise(ros, tmp_path):
     ("registration", {"peers": ["b-c"]}, "are not agent ids"),
     ("registration", {"peers": ["a"]}, "own name"),                 # would hear nobody
     ("registration", {"merged_frame": "a/map"}, "merged_frame"),    # a frame its own parent on /tf
+    # each in range, together no map could be registered
+    ("agent", {"min_nodes": 500, "max_nodes": 100}, "min_nodes (500) must not exceed max_nodes (100)"),
+    ("registration", {"min_nodes": 500, "max_nodes": 100}, "min_nodes (500) must not exceed max_nodes (100)"),
 ])
 def test_invalid_parameters_are_refused_at_start(exe, params, words):
     out = subprocess.run(processes.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,
