@@ -108,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
             model = load_model(cfg.weights or None)
             warm_up(model)
         cases = build_cases(cfg.cases, cfg.settings)
+        if not cases:     # tables of nothing would read as a benchmark that ran
+            raise ValueError(f"no cases for settings {', '.join(cfg.settings)} (rescans need --rescan-gt; "
+                             "different_rooms needs scans of other rooms)")
     except (InstanceMapError, ValueError, TypeError, FileNotFoundError, RuntimeError,
             OSError, KeyError) as exc:
         print(f"sgreg bench-register: {' '.join(str(exc).split())}", file=sys.stderr)

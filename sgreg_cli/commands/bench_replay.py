@@ -104,10 +104,16 @@ def _ensure_bag(job, log) -> dict:
             raise BagSpecError(f"{job.path} is in the way: not a bag made by sgreg make-bag (no "
                                "ground_truth.json with its config); move it or choose another bag_dir")
         shutil.rmtree(job.path)
-    if job.synth is not None and not Path(spec.scan, "points.npy").exists():
+    scene = Path(spec.scan)
+    if job.synth is not None and not scene.exists():
         settings = dict(job.synth)
         seed = int(settings.pop("seed", 0))
-        write_instance_map(generate_scene(seed, from_dict(SynthConfig, settings)), spec.scan)
+        # written beside it and renamed when whole: an interrupted run leaves no scene that the
+        # next one would take as made
+        partial = scene.with_name(scene.name + ".partial")
+        shutil.rmtree(partial, ignore_errors=True)
+        write_instance_map(generate_scene(seed, from_dict(SynthConfig, settings)), partial)
+        partial.rename(scene)
     job.path.parent.mkdir(parents=True, exist_ok=True)
     log(f"making {job.name}")
     make_bag(spec, job.path)

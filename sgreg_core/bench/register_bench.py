@@ -132,27 +132,43 @@ def _sgreg_row(case: Case, method: str, reg: Registration, cpu_ms: float,
 
 
 def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
+    """The rows of the sgreg methods of cfg.methods: each method's own failure is its own error
+    row (a coarse estimate that raises leaves the dense row standing); graphs that cannot be
+    built fail both."""
     rows = []
     timings: dict = {}
-    cpu0 = time.process_time()
-    src_graph, ref_graph = build_graphs(case.src, case.ref, cfg.pipeline, timings)
-    if "sgreg_dense" in cfg.methods:
-        reg = register_graphs(model, src_graph, ref_graph, replace(cfg.pipeline, mode="dense"),
-                              timings)
-        rows.append(_sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg, (src_graph.level, ref_graph.level)))
-    if "sgreg_coarse" in cfg.methods:
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    wanted = [m for m in SGREG_METHODS if m in cfg.methods]
+    try:
+        src_graph, ref_graph = build_graphs(case.src, case.ref, cfg.pipeline, timings)
+    except Exception as exc:  # noqa: BLE001 - one broken case must not end the benchmark
+        return [_error_row(case, m, exc, t0, cfg) for m in wanted]
+    levels = (src_graph.level, ref_graph.level)
+
+    def dense() -> dict:
+        reg = register_graphs(model, src_graph, ref_graph, replace(cfg.pipeline, mode="dense"), timings)
+        return _sgreg_row(case, "sgreg_dense", reg, _cpu_ms(cpu0), cfg, levels)
+
+    def coarse() -> dict:
         # a coarse message carries what encode(dense=False) gives; only matching + pose timed
         src, ref = model.encode(src_graph, dense=False), model.encode(ref_graph, dense=False)
-        coarse = replace(cfg.pipeline, mode="coarse")
+        settings = replace(cfg.pipeline, mode="coarse")
         t0 = time.perf_counter()
-        pose = coarse.pose_config()
+        pose = settings.pose_config()
         reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
         prep_ms = 1e3 * (time.perf_counter() - t0)
         cpu0 = time.process_time()
-        reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, coarse),
-                            src_graph.level, ref_graph.level)
-        rows.append(_sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg, (src_graph.level, ref_graph.level))
-                    | {"ms_map_prep": prep_ms})
+        reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, settings),
+                            *levels)
+        return _sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg, levels) | {"ms_map_prep": prep_ms}
+
+    for method, estimate in (("sgreg_dense", dense), ("sgreg_coarse", coarse)):
+        if method in wanted:
+            t0 = time.perf_counter()
+            try:
+                rows.append(estimate())
+            except Exception as exc:  # noqa: BLE001
+                rows.append(_error_row(case, method, exc, t0, cfg))
     return rows
 
 
@@ -174,11 +190,7 @@ def run_case(model, case: Case, cfg: BenchConfig) -> list[dict]:
     """One row per method of cfg.methods (in METHODS order) for this case."""
     rows = []
     if any(m in cfg.methods for m in SGREG_METHODS):
-        t0 = time.perf_counter()
-        try:
-            rows += _run_sgreg(model, case, cfg)
-        except Exception as exc:  # noqa: BLE001 - one broken case must not end the benchmark
-            rows += [_error_row(case, m, exc, t0, cfg) for m in SGREG_METHODS if m in cfg.methods]
+        rows += _run_sgreg(model, case, cfg)
     for name in BASELINES:
         if name not in cfg.methods:
             continue

@@ -290,3 +290,35 @@ def test_bench_register_refuses_an_unusable_out_before_any_case(tmp_path, capsys
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("sgreg bench-register: cannot create folder ")
     assert err.count("\n") == 1
+
+
+def bench_scans(tmp_path):
+    scans = tmp_path / "scans"
+    write_instance_map(generate_scene(5, SynthConfig(density=200.0)), scans / "toy_scene0009_00")
+    return ["--scans", str(scans), "--scan-prefix", "", "--rooms", "scene0009",
+            "--held-out-rooms", "scene0009", "--no-progress"]
+
+
+def test_bench_register_keeps_the_dense_row_when_the_coarse_estimate_fails(tmp_path, capsys, monkeypatch):
+    from sgreg_core.bench import register_bench
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("coarse broke")
+
+    monkeypatch.setattr(register_bench, "register_features", broken)
+    out = tmp_path / "bench"
+    assert main(["bench-register", *bench_scans(tmp_path), "--rescan-gt", "", "--n", "2",
+                 "--settings", "clean", "--methods", "sgreg_dense", "sgreg_coarse", "--out", str(out)]) == 0
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    coarse = [r for r in rows if r["method"] == "sgreg_coarse"]
+    dense = [r for r in rows if r["method"] == "sgreg_dense"]
+    assert len(coarse) == len(dense) == 2
+    assert all(r["error"] == "RuntimeError: coarse broke" for r in coarse)
+    assert not any("error" in r for r in dense) and any(r["success"] for r in dense)
+
+
+def test_bench_register_with_no_case_to_run_says_so(tmp_path, capsys):
+    code = main(["bench-register", *bench_scans(tmp_path), "--rescan-gt", "", "--settings", "rescan",
+                 "--methods", "kiss_matcher", "--out", str(tmp_path / "bench")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no cases for settings rescan" in err and err.count("\n") == 1

@@ -72,6 +72,10 @@ def test_bad_config():
         generate_scene(0, SynthConfig(kind="castle"))
     with pytest.raises(ValueError):
         generate_scene(0, SynthConfig(rooms=0))
+    # `sgreg synth --rooms 100000` would fill the memory for minutes before any message
+    from sgreg_core.simulation.synth.scene import MAX_ROOMS
+    with pytest.raises(ValueError, match=rf"rooms must lie in \[1, {MAX_ROOMS}\]"):
+        generate_scene(0, SynthConfig(kind="building", rooms=MAX_ROOMS + 1))
 
 
 def test_a_building_floor_has_runs_of_identical_rooms():

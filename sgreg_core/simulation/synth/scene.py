@@ -53,6 +53,9 @@ ROOM_TYPES: dict[str, list[tuple[str, int, int]]] = {
 APARTMENT = ["living room", "bedroom", "kitchen", "bathroom", "dining room", "study", "bedroom"]
 OFFICE = ["open office", "meeting room", "kitchenette", "study", "meeting room", "open office"]
 BUILDING = ["study", "bedroom", "meeting room", "open office", "kitchenette"]   # per run of rooms
+# a floor, not a city: ~70 000 points and 0.1 s a room, and an agent's map stops at
+# AgentConfig.max_points_in_map (2 M) anyway; more rooms would only fill memory
+MAX_ROOMS = 50
 
 
 @dataclass
@@ -371,8 +374,8 @@ def generate_scene(seed: int, cfg: SynthConfig | None = None) -> InstanceMap:
     cfg = cfg or SynthConfig()
     if cfg.kind not in ("apartment", "office", "building"):
         raise ValueError(f"kind must be 'apartment', 'office' or 'building', got {cfg.kind!r}")
-    if cfg.rooms < 1 or cfg.run < 1:
-        raise ValueError(f"rooms and run must be >= 1, got {cfg.rooms}, {cfg.run}")
+    if not 1 <= cfg.rooms <= MAX_ROOMS or cfg.run < 1:
+        raise ValueError(f"rooms must lie in [1, {MAX_ROOMS}] and run be >= 1, got {cfg.rooms}, {cfg.run}")
     rng = np.random.default_rng(seed)
     templates: list[int] = []
     if cfg.kind == "building":
