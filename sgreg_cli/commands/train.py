@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         model_path = train(cfg, resume=args.resume, progress=not args.no_progress)
-    except (FileExistsError, FileNotFoundError) as exc:
+    except (FileExistsError, FileNotFoundError, ValueError) as exc:
         print(f"sgreg train: {exc}", file=sys.stderr)
         return 2
     print(f"model: {model_path} (+ {model_path.with_suffix('.json').name}); run dir {cfg.run_dir}")

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import finite_number
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve
@@ -79,6 +80,15 @@ class DataConfig:
     cache_dir: str = "runs/cache/pairs"
     level: LevelConfig = field(default_factory=LevelConfig)
     graph: GraphConfig = field(default_factory=GraphConfig)
+
+    def __post_init__(self):
+        # a misspelt source would train on the others without a word
+        bad = {k: v for k, v in self.mix.items() if k not in MIX_SOURCES or not finite_number(v) or v < 0}
+        if bad:
+            raise ValueError(f"data.mix: {bad} are not weights >= 0 of the sources {', '.join(MIX_SOURCES)}")
+
+
+MIX_SOURCES = ("scan", "rescan", "synth")
 
 
 @dataclass

@@ -109,6 +109,14 @@ class _Run:
         self.dir = run_dir
         self.checkpoint = run_dir / "checkpoint.pt"
 
+    def load_checkpoint(self) -> dict:
+        """The checkpoint's state (tensors and plain values only: nothing in it runs code);
+        ValueError, in one line, for a file that is not one."""
+        try:
+            return torch.load(self.checkpoint, weights_only=True)
+        except Exception as exc:   # a cut file, another format: UnpicklingError, RuntimeError
+            raise ValueError(f"{self.checkpoint} cannot be resumed: {' '.join(str(exc).split())[:200]}") from None
+
     def save_checkpoint(self, state: dict) -> None:
         tmp = self.checkpoint.with_suffix(".tmp")
         torch.save(state, tmp)
@@ -127,8 +135,17 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True,
     run = _Run(Path(cfg.run_dir))
     if run.checkpoint.exists() and not resume:
         raise FileExistsError(f"{run.checkpoint} exists: resume it (--resume) or pick another run_dir")
-    run.dir.mkdir(parents=True, exist_ok=True)
-    (run.dir / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+    state = run.load_checkpoint() if resume and run.checkpoint.exists() else None
+    if state is not None:
+        # a resumed run is the run it continues: another validation room or data would make a
+        # model trained on two configs, saved under one
+        changed = _changed(state.get("config") or _saved_config(run), cfg.to_dict())
+        if changed:
+            raise ValueError(f"{run.checkpoint} was trained with other settings ({', '.join(changed)}); "
+                             "resume it with its own config or pick another run_dir")
+    else:
+        run.dir.mkdir(parents=True, exist_ok=True)
+        (run.dir / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
 
     text_encoder = text_encoder or TextEncoder(cache_path=cfg.text_cache)
     model = SGRegModel(cfg.model, text_encoder=text_encoder).train()
@@ -136,18 +153,18 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True,
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: _lr_factor(s, cfg.optim))
     history: dict = {"train": [], "val": []}
     start = 0
-    if resume and run.checkpoint.exists():
-        state = torch.load(run.checkpoint, weights_only=False)
+    window: list[dict] = []      # losses since the last log line
+    if state is not None:
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
         torch.set_rng_state(state["torch_rng"])
         history, start = state["history"], state["step"]
+        window = state.get("window", [])
 
     train_pairs = PairSource(cfg.data, "train", cfg.seed)
     val_source = PairSource(cfg.data, "val", cfg.seed)
     val_pairs: list[GraphPair] | None = None
-    window: list[dict] = []
     bar = tqdm(range(start, cfg.optim.steps), initial=start, total=cfg.optim.steps,
                disable=not progress, desc="train", unit="step", dynamic_ncols=True)
     t_start = time.time()
@@ -179,7 +196,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True,
         if done % cfg.checkpoint_every == 0 or done == cfg.optim.steps:
             run.save_checkpoint({"model": model.state_dict(), "optimizer": opt.state_dict(),
                                  "scheduler": sched.state_dict(), "torch_rng": torch.get_rng_state(),
-                                 "history": history, "step": done})
+                                 "history": history, "step": done, "window": window,
+                                 "config": cfg.to_dict()})
             run.write_history(history)
     bar.close()
 
@@ -191,6 +209,26 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True,
     model_path = run.dir / "model.safetensors"
     save_model(model.eval(), model_path, meta=meta)
     return model_path
+
+
+def _saved_config(run: _Run) -> dict | None:
+    """The config.yaml of a run whose checkpoint predates keeping its config (None: none)."""
+    path = run.dir / "config.yaml"
+    return yaml.safe_load(path.read_text()) if path.exists() else None
+
+
+def _changed(before: dict | None, now: dict, prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between two resolved configs (before None: none)."""
+    if before is None:
+        return []
+    out = []
+    for key in sorted(before.keys() | now.keys()):
+        a, b = before.get(key), now.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _changed(a, b, f"{prefix}{key}.")
+        elif json.dumps(a) != json.dumps(b):    # tuples and lists alike, as YAML gives them
+            out.append(f"{prefix}{key}")
+    return out
 
 
 def _trained_on(cfg: TrainConfig) -> str:

@@ -26,9 +26,9 @@ def scans(tmp_path_factory):
     return root
 
 
-def _cfg(tmp_path, scans, run="run", **optim):
+def _cfg(tmp_path, scans, run="run", log_every=1, **optim):
     data = {
-        "run_dir": str(tmp_path / run), "threads": 1, "log_every": 1, "val_every": 100,
+        "run_dir": str(tmp_path / run), "threads": 1, "log_every": log_every, "val_every": 100,
         "checkpoint_every": 2,
         "data": {"scans_dir": str(scans), "scan_prefix": "toy_", "rescan_gt": "",
                  "val_room": "scene0002", "train_pairs": 3, "val_pairs": 1,
@@ -64,12 +64,14 @@ def test_pair_source_splits_rooms_and_caches(tmp_path, scans):
 
 def test_train_writes_outputs_and_resumes_exactly(tmp_path, scans, monkeypatch):
     text = hashed_text_encoder()
-    full = train(_cfg(tmp_path, scans, "full"), progress=False, text_encoder=text)
+    # losses logged every 3 steps, checkpoints every 2: the resumed run must carry the losses
+    # of the steps before its checkpoint into its first log line
+    full = train(_cfg(tmp_path, scans, "full", log_every=3), progress=False, text_encoder=text)
     run_dir = full.parent
     for name in ("config.yaml", "history.json", "loss_curve.png", "model.json", "checkpoint.pt"):
         assert (run_dir / name).exists(), name
     history = json.loads((run_dir / "history.json").read_text())
-    assert [r["step"] for r in history["train"]] == [1, 2, 3, 4] and len(history["val"]) == 1
+    assert [r["step"] for r in history["train"]] == [3, 4] and len(history["val"]) == 1
     assert load_model(full, text_encoder=text).weights_id == json.loads(
         (run_dir / "model.json").read_text())["weights_id"]
 
@@ -83,16 +85,39 @@ def test_train_writes_outputs_and_resumes_exactly(tmp_path, scans, monkeypatch):
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    cfg = _cfg(tmp_path, scans, "split")
+    cfg = _cfg(tmp_path, scans, "split", log_every=3)
     monkeypatch.setattr(train_module, "pair_step_losses", dying)
     with pytest.raises(KeyboardInterrupt):
         train(cfg, progress=False, text_encoder=text)
     monkeypatch.setattr(train_module, "pair_step_losses", real)
     with pytest.raises(FileExistsError):
         train(cfg, progress=False, text_encoder=text)
+    # another validation room (or any other setting) is not this run: refused, nothing written
+    saved = (cfg_dir := Path(cfg.run_dir)).joinpath("config.yaml").read_text()
+    other = from_dict(TrainConfig, apply_overrides(cfg.to_dict(), ["data.val_room=scene0001"]))
+    with pytest.raises(ValueError, match=r"other settings \(data.val_room\)"):
+        train(other, resume=True, progress=False, text_encoder=text)
+    assert (cfg_dir / "config.yaml").read_text() == saved
     resumed = train(cfg, resume=True, progress=False, text_encoder=text)
     a, b = load_file(str(full)), load_file(str(resumed))
     assert all(torch.equal(a[k], b[k]) for k in a)
+    assert json.loads((cfg_dir / "history.json").read_text())["train"] == history["train"]
+
+
+def test_a_checkpoint_that_cannot_be_read_is_one_line(tmp_path, scans, capsys):
+    from sgreg_cli.main import main
+
+    cfg = _cfg(tmp_path, scans, "cut")
+    Path(cfg.run_dir).mkdir(parents=True)
+    (Path(cfg.run_dir) / "checkpoint.pt").write_bytes(b"PK\x03\x04 not a checkpoint")
+    config = tmp_path / "train.yaml"
+    import yaml
+    config.write_text(yaml.safe_dump(cfg.to_dict()))
+    assert main(["train", "--config", str(config), "--resume", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "checkpoint.pt cannot be resumed" in err and err.count("\n") == 1
+    with pytest.raises(ValueError, match="data.mix"):
+        from_dict(TrainConfig, apply_overrides(cfg.to_dict(), ["data.mix={scna: 1.0}"]))
 
 
 def test_default_config_file_parses_and_overrides():
