@@ -14,6 +14,9 @@ Public API:
                                           not be a folder itself
     weights_files(path) -> (Path, Path)   a model's .safetensors and its .json, or
                                           FileNotFoundError naming both
+    source_digest(*paths) -> str          16 hex chars over the Python sources under paths
+                                          (files or folders, relative to REPO): a cache key part
+                                          that a code change invalidates
 """
 from __future__ import annotations
 
@@ -23,6 +26,18 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 SCANS = "../shared/data/scans"
 RESCAN_GT = "../shared/data/rescan_gt.json"
+
+
+def source_digest(*paths: str) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    for path in paths:
+        root = REPO / path
+        for f in sorted(root.rglob("*.py")) if root.is_dir() else [root]:
+            h.update(str(f.relative_to(REPO)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def resolve(path: str | Path) -> Path:

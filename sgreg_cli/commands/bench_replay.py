@@ -60,21 +60,6 @@ def _bag_digest(path: Path) -> str:
     return h.hexdigest()[:16]
 
 
-def _source_digest() -> str:
-    """sha256 over the Python sources of the pipeline: a code change invalidates cached results."""
-    import sgreg_cli
-    import sgreg_core
-    import sgreg_ros
-
-    h = hashlib.sha256()
-    for pkg in (sgreg_core, sgreg_ros, sgreg_cli):
-        root = Path(pkg.__file__).parent
-        for f in sorted(root.rglob("*.py")):
-            h.update(str(f.relative_to(root)).encode())
-            h.update(f.read_bytes())
-    return h.hexdigest()[:16]
-
-
 def _ensure_bag(job, log) -> dict:
     """Make the job's bag unless one made from the same spec is there; replace one this suite
     made with other settings, never anything else; the ground truth of every bag, checked."""
@@ -252,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     from sgreg_core.net.model import load_model
+    from sgreg_core.paths import source_digest
 
     try:
         model = load_model(args.weights)
@@ -263,7 +249,8 @@ def run(args: argparse.Namespace) -> int:
     model_config = model.cfg.to_dict()
     context = {"backend": args.backend, "weights_id": model.weights_id,
                "model_config": hashlib.sha256(json.dumps(model_config, sort_keys=True).encode()).hexdigest()[:16],
-               "source": _source_digest(),
+               # the pipeline's sources: a code change invalidates cached results
+               "source": source_digest("sgreg_core", "sgreg_ros", "sgreg_cli"),
                "params": hashlib.sha256(params).hexdigest()[:16], "overrides": args.overrides}
     if args.backend == "offline":
         import torch

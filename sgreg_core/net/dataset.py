@@ -35,7 +35,7 @@ import numpy as np
 from ..config import finite_number
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import labelled_mask, read_instance_map
-from ..paths import RESCAN_GT, SCANS, require, resolve
+from ..paths import RESCAN_GT, SCANS, require, resolve, source_digest
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
 from ..maps.level import LevelConfig, level_map
@@ -203,11 +203,16 @@ class PairSource:
         return out
 
     def _key(self) -> str:
-        """Cache name: everything that changes the pairs (not the pool size: pair i is pair i)."""
+        """Cache name: everything that changes the pairs (not the pool size: pair i is pair i):
+        the settings, the scans, the rescan pairs with their transforms (not only the file's
+        name) and the code that cuts pairs and builds their graphs."""
         cfg = dataclasses.asdict(self.cfg)
         for k in ("train_pairs", "val_pairs", "cache_dir"):
             cfg.pop(k)
-        blob = json.dumps([cfg, self.seed, self.scans, self.weights], sort_keys=True, default=str)
+        rescans = [(a, b, np.round(T, 9).tolist()) for a, b, T in self.rescans]
+        code = source_digest("sgreg_core/net/dataset.py", "sgreg_core/simulation", "sgreg_core/maps",
+                             "sgreg_core/geometry.py")
+        blob = json.dumps([cfg, self.seed, self.scans, self.weights, rescans, code], sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:10]
 
     def pair(self, index: int) -> GraphPair:

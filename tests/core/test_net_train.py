@@ -62,6 +62,31 @@ def test_pair_source_splits_rooms_and_caches(tmp_path, scans):
     assert np.median(dist) < 0.1
 
 
+def test_the_pair_cache_is_keyed_on_the_rescan_transforms_and_the_code(tmp_path, scans, monkeypatch):
+    """A corrected pseudo ground truth (same file name) or a change to the code that cuts pairs
+    must not reuse pairs cut before it."""
+    from dataclasses import replace
+
+    from sgreg_core.net import dataset
+
+    def rescan_gt(x):
+        path = tmp_path / f"gt_{x}.json"
+        path.write_text(json.dumps({"pairs": [{"src": "toy_scene0001_00", "ref": "toy_scene0001_00",
+                                               "accepted": True,
+                                               "T_src_to_ref": np.eye(4).tolist() if x == 0 else
+                                               [[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}]}))
+        return str(path)
+
+    cfg = _cfg(tmp_path, scans).data
+    first = PairSource(replace(cfg, rescan_gt=rescan_gt(0)), "train", 0).cache
+    assert PairSource(replace(cfg, rescan_gt=rescan_gt(0)), "train", 0).cache == first
+    (tmp_path / "gt_0.json").write_text((Path(rescan_gt(1))).read_text())     # corrected in place
+    assert PairSource(replace(cfg, rescan_gt=str(tmp_path / "gt_0.json")), "train", 0).cache != first
+    before = PairSource(cfg, "train", 0).cache
+    monkeypatch.setattr(dataset, "source_digest", lambda *paths: "changed")
+    assert PairSource(cfg, "train", 0).cache != before
+
+
 def test_train_writes_outputs_and_resumes_exactly(tmp_path, scans, monkeypatch):
     text = hashed_text_encoder()
     # losses logged every 3 steps, checkpoints every 2: the resumed run must carry the losses
