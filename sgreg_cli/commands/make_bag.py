@@ -13,6 +13,8 @@ import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from sgreg_core.config import finite_number
+
 NAME = "make-bag"
 HELP = "simulate agents walking in a scan and write a rosbag2 (MCAP)"
 GT_TOPIC = "/sgreg/ground_truth"
@@ -69,6 +71,12 @@ class BagSpec:
                 raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be "
                                    f"{'an integer' if integral else 'a number'} in [{lo:g}, {hi:g}]{unit}, "
                                    f"got {value!r}")
+        for name in ("start_a", "start_b"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (tuple, list)) and len(value) == 2
+                                          and all(finite_number(v) for v in value)):
+                raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be two finite numbers "
+                                   f"(scene x, y in m), got {value!r}")
 
 
 class BagSpecError(ValueError):
@@ -145,8 +153,12 @@ def rescan_transform(scan: str, scan_b: str, gt_path: str):
     for entry in pairs:
         if {entry.get("src"), entry.get("ref")} != {a, b}:
             continue
-        if not entry.get("accepted"):
-            why = "; ".join(entry.get("reasons") or [entry.get("reason", "no reason given")])
+        accepted = entry.get("accepted")
+        if not isinstance(accepted, bool):    # "no" would read as accepted
+            raise BagSpecError(f"{gt_path}: 'accepted' of {a} x {b} must be true or false, got {accepted!r}")
+        if not accepted:
+            reasons = entry.get("reasons") or [entry.get("reason") or "no reason given"]
+            why = "; ".join(map(str, reasons if isinstance(reasons, list) else [reasons]))
             raise BagSpecError(f"{gt_path} rejects {a} x {b}: {why}")
         # the bag's ground truth must be a rigid transform, or every score against it is wrong
         if not is_rigid(entry.get("T_src_to_ref")):
@@ -189,6 +201,12 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         T_b_capture = rescan_transform(spec.scan, spec.scan_b, spec.gt)
         scene_b = scene_b.transformed(T_level @ T_b_capture)
     scene = scene.transformed(T_level)
+    lo, hi = scene.points[:, :2].min(axis=0), scene.points[:, :2].max(axis=0)
+    for name, start in (("start_a", spec.start_a), ("start_b", spec.start_b)):
+        # the walk would start at the free cell nearest to it: far from where it was asked
+        if start is not None and not np.all((lo - 1.0 <= np.asarray(start)) & (np.asarray(start) <= hi + 1.0)):
+            raise BagSpecError(f"{name} ({start[0]:g}, {start[1]:g}) lies outside the scene (x in "
+                               f"[{lo[0]:.1f}, {hi[0]:.1f}], y in [{lo[1]:.1f}, {hi[1]:.1f}] m)")
     cfg = WalkConfig(agents=spec.agents, opposite=spec.opposite, mapping_period=spec.mapping_period,
                      voxel=spec.voxel, start_b=spec.start_b,
                      sensor=SensorConfig(max_range=spec.range, hfov_deg=spec.fov),

@@ -197,7 +197,7 @@ class PairSource:
         entries = json.loads(resolve(self.cfg.rescan_gt).read_text())["pairs"]
         out = []
         for e in entries:
-            if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
+            if e.get("accepted") is True and e["src"] in scans and e["ref"] in scans:
                 T = np.asarray(e["T_src_to_ref"], np.float64)
                 out += [(e["src"], e["ref"], T), (e["ref"], e["src"], invert_transform(T))]
         return out

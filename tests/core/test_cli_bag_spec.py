@@ -21,6 +21,25 @@ def test_bag_settings_out_of_range_are_refused(setting):
         BagSpec(scan="scan", **setting)
 
 
+@pytest.mark.parametrize("start", [(1.0,), (float("nan"), 0.0), ("x", 1.0), (1.0, 2.0, 3.0)])
+def test_start_points_that_are_not_two_finite_numbers_are_refused(start):
+    with pytest.raises(BagSpecError, match=r"^start_b \(--start-b\) must be two finite numbers"):
+        BagSpec(scan="scan", start_b=start)
+
+
+def test_a_start_point_outside_the_scene_is_refused_before_simulating(tmp_path, capsys):
+    """The walk would start at the free cell nearest to it, far from where it was asked."""
+    from sgreg_core.maps.instance_map import write_instance_map
+    from sgreg_core.simulation.synth import SynthConfig, generate_scene
+
+    write_instance_map(generate_scene(0, SynthConfig(density=100.0)), tmp_path / "scene")
+    assert main(["make-bag", str(tmp_path / "scene"), "--out", str(tmp_path / "bag"),
+                 "--start-a", "500,0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "start_a (500, 0) lies outside the scene (x in [" in err, err
+    assert not (tmp_path / "bag").exists()
+
+
 def test_default_and_shipped_bag_settings_are_accepted():
     BagSpec(scan="scan")
     BagSpec(scan="scan", speed=0.2, mapping_period=3.0, clearance=0.15, voxel=0.15, range_b=3.0, fov_b=60.0)
@@ -54,6 +73,11 @@ RIGID = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 0.0], [0.0
      "not a 4x4 rigid transform"),
     ({"pairs": [{"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": (2 * np.eye(4)).tolist()}]},
      "not a 4x4 rigid transform"),
+    # "no" is a truthy string: read as accepted, the bag's ground truth would be a rejected pair's
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": "no", "T_src_to_ref": RIGID}]},
+     "'accepted' of a x b must be true or false, got 'no'"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": False, "reasons": "overlap 0.1"}]}, "rejects a x b: overlap 0.1$"),
+    ({"pairs": [{"src": "b", "ref": "a", "accepted": False, "reasons": [3, "low"]}]}, "rejects a x b: 3; low$"),
 ])
 def test_a_malformed_pseudo_ground_truth_is_refused(tmp_path, content, why):
     gt = tmp_path / "rescan_gt.json"
