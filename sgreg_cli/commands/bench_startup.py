@@ -61,10 +61,25 @@ def _pair(cfg: StartupConfig, root: Path) -> Path:
     return root / "pair"
 
 
-def _timed(cmd: list[str]) -> tuple[float, int]:
+class ProcessFailed(RuntimeError):
+    """A timed process that failed: its time is not the time of the work it was to do."""
+
+
+def _timed(cmd: list[str], what: str) -> float:
+    """Seconds `cmd` ran; ProcessFailed (with the end of its stderr) when it exits non-zero."""
     t0 = time.perf_counter()
-    rc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
-    return time.perf_counter() - t0, rc
+    res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if res.returncode != 0:
+        last = (res.stderr.strip().splitlines() or ["no output"])[-1]
+        raise ProcessFailed(f"{what} exited with {res.returncode} ({last}): not timed")
+    return time.perf_counter() - t0
+
+
+def _stopped(proc, what: str) -> None:
+    """After SIGINT: ProcessFailed unless the node exited cleanly (a crash is no shutdown)."""
+    proc.wait(timeout=30)
+    if proc.returncode != 0:
+        raise ProcessFailed(f"{what} exited with {proc.returncode} on SIGINT: not timed")
 
 
 def _node_ready(node, exe: str, agent: str, imap) -> tuple[float, float]:
@@ -87,12 +102,14 @@ def _node_ready(node, exe: str, agent: str, imap) -> tuple[float, float]:
             pub.publish(instance_map_to_msg(imap, agent, 1, time.time_ns()))
             sent = True
         rclpy.spin_once(node, timeout_sec=0.01)
-    ready = time.perf_counter() - t0 if got else float("nan")
+    ready = time.perf_counter() - t0
     t1 = time.perf_counter()
     os.killpg(proc.pid, signal.SIGINT)
-    proc.wait(timeout=30)
+    _stopped(proc, f"the {exe} node")
     node.destroy_subscription(sub)
     node.destroy_publisher(pub)
+    if not got:
+        raise ProcessFailed(f"the {exe} node sent no coarse graph within 60 s: not timed")
     return ready, time.perf_counter() - t1
 
 
@@ -102,7 +119,7 @@ def _stop_during_startup(exe: str, after_s: float) -> float:
     time.sleep(after_s)
     t0 = time.perf_counter()
     os.killpg(proc.pid, signal.SIGINT)
-    proc.wait(timeout=30)
+    _stopped(proc, f"the {exe} node")
     return time.perf_counter() - t0
 
 
@@ -123,8 +140,12 @@ def run(args) -> int:
         rows: dict[str, list[float]] = {}
         for k in range(cfg.runs):
             print(f"[bench-startup] run {k + 1}/{cfg.runs}: register processes", flush=True)
-            rows.setdefault("sgreg register (whole process)", []).append(_timed(sgreg)[0])
-            rows.setdefault("KISS-Matcher (whole process)", []).append(_timed(kiss)[0])
+            try:
+                rows.setdefault("sgreg register (whole process)", []).append(_timed(sgreg, "sgreg register"))
+                rows.setdefault("KISS-Matcher (whole process)", []).append(_timed(kiss, "KISS-Matcher"))
+            except ProcessFailed as exc:
+                print(f"sgreg bench-startup: {exc}", file=sys.stderr)
+                return 2
         imap = read_instance_map(pair / "ref")
         rclpy.init()
         node = rclpy.create_node("sgreg_bench_startup")
@@ -138,6 +159,9 @@ def run(args) -> int:
                 for exe in ("agent", "registration"):
                     rows.setdefault(f"{exe} node: SIGINT -> exit (1 s into start-up)", []).append(
                         _stop_during_startup(exe, 1.0))
+        except ProcessFailed as exc:
+            print(f"sgreg bench-startup: {exc}", file=sys.stderr)
+            return 2
         finally:
             node.destroy_node()
             rclpy.try_shutdown()

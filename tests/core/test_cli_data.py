@@ -178,3 +178,15 @@ def test_defaults_named_in_help_texts_are_the_code_defaults():
         helps.update({a.dest: a.help for a in parser._actions})
     assert f"{GraphConfig().voxel_size:g})" in helps["voxel"]
     assert MergeConfig().merged_frame in helps["frame"]
+
+
+def test_bench_startup_times_no_process_that_failed():
+    """A process that exits non-zero (a missing module, a refused input) took its time failing:
+    that time is no start-up time, so the bench stops and says which one instead of a table."""
+    import sys
+
+    from sgreg_cli.commands.bench_startup import ProcessFailed, _timed
+
+    assert _timed([sys.executable, "-c", "pass"], "python") > 0
+    with pytest.raises(ProcessFailed, match=r"KISS-Matcher exited with 3 \(boom\): not timed"):
+        _timed([sys.executable, "-c", "import sys; print('boom', file=sys.stderr); sys.exit(3)"], "KISS-Matcher")

@@ -378,6 +378,23 @@ def test_bench_pose_cli(tmp_path, capsys):
     assert main(["bench-pose", "--outliers", "1.5", "--out", str(out)]) == 2
 
 
+def test_bench_pose_counts_a_claimed_success_at_a_wrong_pose_as_a_failure(tmp_path, monkeypatch):
+    import sgreg_core.pose as pose
+
+    real = pose.estimate_pose
+
+    def claims_everything(src, ref, cfg=None):
+        res = real(src, ref, cfg=cfg)
+        res.T, res.success = np.eye(4), True       # a pose nobody asked for, said to be right
+        return res
+
+    monkeypatch.setattr(pose, "estimate_pose", claims_everything)
+    out = tmp_path / "pose.json"
+    assert main(["bench-pose", "--n", "100", "--outliers", "0.5", "--trials", "2", "--out", str(out)]) == 0
+    [row] = json.loads(out.read_text())["rows"]
+    assert row["claimed_rate"] == 1.0 and row["success_rate"] == 0.0
+
+
 def object_correspondences(rng, T, centers, per_object=12, noise=0.01, size=0.15):
     """Correspondences on objects (about `size` m) at `centers`, consistent with T, and their
     groups."""
