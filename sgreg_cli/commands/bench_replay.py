@@ -221,6 +221,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"sgreg bench-replay: {exc}", file=sys.stderr)
         return 2
 
+    from sgreg_core.net.model import load_model
+    from sgreg_core.paths import source_digest
+
+    # weights that cannot be loaded are said before minutes of making bags, not after
+    try:
+        model = None if args.make_only else load_model(args.weights)
+    except (OSError, RuntimeError, ValueError) as exc:
+        print(f"sgreg bench-replay: cannot load weights: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
     def log(s: str) -> None:
         print(f"[bench-replay] {s}", flush=True)
 
@@ -236,14 +246,6 @@ def run(args: argparse.Namespace) -> int:
         log(f"{len(jobs)} bags ready under {suite.bag_dir}")
         return 0
 
-    from sgreg_core.net.model import load_model
-    from sgreg_core.paths import source_digest
-
-    try:
-        model = load_model(args.weights)
-    except (OSError, RuntimeError, ValueError) as exc:
-        print(f"sgreg bench-replay: cannot load weights: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
     # the model's settings (the .json beside the weights) as well as its tensors: a changed
     # matching setting is another model even where the weights_id stays
     model_config = model.cfg.to_dict()

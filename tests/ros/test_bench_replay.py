@@ -149,6 +149,13 @@ def test_bad_suite_values_and_run_inputs_are_refused_in_one_line(tmp_path):
         res = subprocess.run(SGREG + ["bench-replay", str(suite), "--out", str(tmp_path / "out"), *extra],
                              capture_output=True, text=True, timeout=120)
         assert res.returncode == 2 and words in res.stderr and res.stderr.count("\n") == 1, res.stderr
+    # weights that cannot be loaded are said before any bag is made, not after making them all
+    suite.write_text("scans: [{synth: {}}]\n")
+    res = subprocess.run(SGREG + ["bench-replay", str(suite), "--out", str(tmp_path / "out"),
+                                  "--weights", str(tmp_path / "none.safetensors")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "cannot load weights" in res.stderr
+    assert not (tmp_path / "generated").exists() and "making" not in res.stdout
 
 
 def test_a_synthetic_scene_whose_writing_was_interrupted_is_made_again(tmp_path, monkeypatch):
