@@ -103,14 +103,19 @@ class AgentNode(SgregNode):
                                 key="oversized request")
         try:
             msg = convert.decode(raw, DenseRequest)
+        except convert.ConversionError as exc:
+            return self.refusal(self.core.refuse("malformed_message", f"dense request refused: {exc}"),
+                                key="malformed request")
+        # who sent it before anything of it is converted: a stranger's request costs a signature check
+        refused = self.auth.check(msg, self.topic("sgreg/dense_request"), msg.from_agent)
+        if refused:
+            return self.refusal(self.core.refuse(refused, f"dense request {msg.sequence} "
+                                                 f"from {msg.from_agent!r} refused: {refused}"), key=refused)
+        try:
             req = convert.request_from_msg(msg)
         except convert.ConversionError as exc:
             return self.refusal(self.core.refuse("malformed_message", f"dense request refused: {exc}"),
                                 key="malformed request")
-        refused = self.auth.check(msg, self.topic("sgreg/dense_request"), req.from_agent)
-        if refused:
-            return self.refusal(self.core.refuse(refused, f"dense request {req.sequence} "
-                                                 f"from {req.from_agent!r} refused: {refused}"), key=refused)
         self.guarded(f"dense request {req.sequence} of {req.from_agent!r}", lambda: self._answer(req))
 
     def _answer(self, req) -> None:
