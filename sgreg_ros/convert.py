@@ -24,7 +24,7 @@ from sgreg_core.runtime.messages import DenseRequestMessage, Estimate, GraphMess
 from sgreg_core.runtime.wire import WireError, pack_features, unpack_features
 from sgreg_core.types import InstanceMap as CoreInstanceMap
 
-from .pointcloud import POINT_STEP, PointCloudError, pack_xyz_id, unpack_xyz_id
+from .pointcloud import PointCloudError, pack_xyz_id, unpack_xyz_id
 
 
 class ConversionError(ValueError):
@@ -105,6 +105,9 @@ MAX_AHEAD_S = 3600.0
 
 # what an instance map holds besides its points (ids, labels, scores, headers) is far below this
 MAP_OVERHEAD_BYTES = 8 << 20
+# bytes a point may take in a front end's cloud: sgreg's layout takes 16, PCL's padded ones 32
+# (PointXYZL) or 48; a map is refused before decoding only when even this much a point is too big
+MAX_POINT_BYTES = 64
 # a dense request: its header, names and node ids (4 bytes each), at most max_nodes of them
 REQUEST_OVERHEAD_BYTES = 4096
 
@@ -126,7 +129,7 @@ def take_instance_map(raw: bytes, take, refuse, agent_id: str, now_ns: int = 0,
     stamp, or is stamped more than MAX_AHEAD_S after now_ns (the node's clock; 0: not checked).
     Bytes that cannot hold at most max_points points (0: not checked) are "oversized_message",
     refused before they are decoded (a copy of them would be made first)."""
-    if max_points > 0 and len(raw) > max_points * POINT_STEP + MAP_OVERHEAD_BYTES:
+    if max_points > 0 and len(raw) > max_points * MAX_POINT_BYTES + MAP_OVERHEAD_BYTES:
         return refuse("oversized_message", f"instance map of {len(raw) / 1e6:.1f} MB refused before decoding: "
                                            f"more than max_points_in_map={max_points} points")
     try:

@@ -90,9 +90,12 @@ def _ensure_bag(job, log) -> dict:
                                "ground_truth.json with its config); move it or choose another bag_dir")
         shutil.rmtree(job.path)
     scene = Path(spec.scan)
-    if job.synth is not None and not scene.exists():
+    # instances.json is written after the arrays: a folder without it (left by an older run
+    # that was interrupted) is made again
+    if job.synth is not None and not (scene / "instances.json").exists():
         settings = dict(job.synth)
         seed = int(settings.pop("seed", 0))
+        shutil.rmtree(scene, ignore_errors=True)
         # written beside it and renamed when whole: an interrupted run leaves no scene that the
         # next one would take as made
         partial = scene.with_name(scene.name + ".partial")

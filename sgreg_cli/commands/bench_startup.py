@@ -98,6 +98,10 @@ def _node_ready(node, exe: str, agent: str, imap) -> tuple[float, float]:
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     sent = False
     while not got and time.perf_counter() - t0 < 60:
+        if proc.poll() is not None:     # crashed while starting: no shutdown to time either
+            node.destroy_subscription(sub)
+            node.destroy_publisher(pub)
+            raise ProcessFailed(f"the {exe} node exited with {proc.returncode} during start-up: not timed")
         if not sent and pub.get_subscription_count() > 0:
             pub.publish(instance_map_to_msg(imap, agent, 1, time.time_ns()))
             sent = True

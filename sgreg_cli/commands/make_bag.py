@@ -201,9 +201,10 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         T_b_capture = rescan_transform(spec.scan, spec.scan_b, spec.gt)
         scene_b = scene_b.transformed(T_level @ T_b_capture)
     scene = scene.transformed(T_level)
-    lo, hi = scene.points[:, :2].min(axis=0), scene.points[:, :2].max(axis=0)
-    for name, start in (("start_a", spec.start_a), ("start_b", spec.start_b)):
+    walks = (("start_a", spec.start_a, scene), ("start_b", spec.start_b, scene if scene_b is None else scene_b))
+    for name, start, walked in walks:
         # the walk would start at the free cell nearest to it: far from where it was asked
+        lo, hi = walked.points[:, :2].min(axis=0), walked.points[:, :2].max(axis=0)
         if start is not None and not np.all((lo - 1.0 <= np.asarray(start)) & (np.asarray(start) <= hi + 1.0)):
             raise BagSpecError(f"{name} ({start[0]:g}, {start[1]:g}) lies outside the scene (x in "
                                f"[{lo[0]:.1f}, {hi[0]:.1f}], y in [{lo[1]:.1f}, {hi[1]:.1f}] m)")

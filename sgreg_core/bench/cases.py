@@ -172,7 +172,7 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     entries = json.loads(resolve(cfg.rescan_gt).read_text())["pairs"]
     directions = []
     for e in entries:
-        if e.get("accepted") and e["src"] in scans and e["ref"] in scans:
+        if e.get("accepted") is True and e["src"] in scans and e["ref"] in scans:   # "no" is no
             T = np.asarray(e["T_src_to_ref"], np.float64)
             directions.append((e["src"], e["ref"], T))
             if _room(e["src"]) in cfg.held_out_rooms:

@@ -217,17 +217,24 @@ def _saved_config(run: _Run) -> dict | None:
     return yaml.safe_load(path.read_text()) if path.exists() else None
 
 
+# settings a resumed run may change: where it runs and reports, not what it trains
+RESUMABLE_CHANGES = ("run_dir", "threads", "log_every", "val_every", "checkpoint_every", "text_cache",
+                     "data.cache_dir")
+
+
 def _changed(before: dict | None, now: dict, prefix: str = "") -> list[str]:
-    """The dotted keys whose values differ between two resolved configs (before None: none)."""
+    """The dotted keys whose values differ between two resolved configs (before None: none),
+    but for RESUMABLE_CHANGES and keys one of them lacks (a setting added since the checkpoint
+    was written has its default, which is what the run had)."""
     if before is None:
         return []
     out = []
-    for key in sorted(before.keys() | now.keys()):
-        a, b = before.get(key), now.get(key)
-        if isinstance(a, dict) and isinstance(b, dict):
-            out += _changed(a, b, f"{prefix}{key}.")
-        elif json.dumps(a) != json.dumps(b):    # tuples and lists alike, as YAML gives them
-            out.append(f"{prefix}{key}")
+    for key in sorted(before.keys() & now.keys()):
+        a, b, name = before[key], now[key], f"{prefix}{key}"
+        if isinstance(a, dict) and isinstance(b, dict) and name != "data.mix":   # mix's keys are its value
+            out += _changed(a, b, f"{name}.")
+        elif name not in RESUMABLE_CHANGES and json.dumps(a) != json.dumps(b):   # tuples and lists alike
+            out.append(name)
     return out
 
 

@@ -123,6 +123,16 @@ def test_train_writes_outputs_and_resumes_exactly(tmp_path, scans, monkeypatch):
     with pytest.raises(ValueError, match=r"other settings \(data.val_room\)"):
         train(other, resume=True, progress=False, text_encoder=text)
     assert (cfg_dir / "config.yaml").read_text() == saved
+    # where it runs and reports may change (a run folder moved, more threads); what it trains not
+    from sgreg_core.net.train import _changed
+    was = cfg.to_dict()
+    moved = from_dict(TrainConfig, apply_overrides(cfg.to_dict(), ["threads=2", "log_every=7",
+                                                                   "data.cache_dir=/elsewhere"])).to_dict()
+    assert _changed(was, moved) == []
+    mixed = from_dict(TrainConfig, apply_overrides(cfg.to_dict(), ["data.mix={scan: 1.0, synth: 0.5}"])).to_dict()
+    assert _changed(was, mixed) == ["data.mix"]
+    del was["optim"]["steps"]          # a setting the checkpoint predates: its default is taken
+    assert _changed(was, cfg.to_dict()) == []
     resumed = train(cfg, resume=True, progress=False, text_encoder=text)
     a, b = load_file(str(full)), load_file(str(resumed))
     assert all(torch.equal(a[k], b[k]) for k in a)

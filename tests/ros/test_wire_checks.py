@@ -98,7 +98,15 @@ def test_messages_too_big_for_what_they_hold_are_refused_before_decoding():
     # room for the map's 1000 points: taken as far as the checks go
     convert.take_instance_map(raw, lambda *a: taken.append(a), refuse, "a", max_points=1000)
     assert taken and not said
-    big = serialize_message(samples.instance_map(rng, n_points=(convert.MAP_OVERHEAD_BYTES >> 4) + 1200))
+    # a front end's padded layout (32 bytes a point, as PCL's PointXYZL) is no bigger a map
+    wide = samples.instance_map(rng, n_points=1000)
+    wide.points.point_step, wide.points.row_step = 32, 32 * 1000
+    wide.points.data = bytes(32 * 1000)
+    convert.take_instance_map(serialize_message(wide), lambda *a: taken.append(a), refuse, "a", max_points=1000)
+    assert len(taken) == 2 and not said
+    taken.pop()
+    too_many = (convert.MAP_OVERHEAD_BYTES + 1000 * convert.MAX_POINT_BYTES) // 16 + 1000
+    big = serialize_message(samples.instance_map(rng, n_points=too_many))
     convert.take_instance_map(big, lambda *a: taken.append(a), refuse, "a", max_points=1000)
     assert len(taken) == 1 and said[0][0] == "oversized_message" and "max_points_in_map=1000" in said[0][1]
     # a request naming every node of a graph of max_nodes fits; one naming more does not

@@ -53,9 +53,9 @@ ROOM_TYPES: dict[str, list[tuple[str, int, int]]] = {
 APARTMENT = ["living room", "bedroom", "kitchen", "bathroom", "dining room", "study", "bedroom"]
 OFFICE = ["open office", "meeting room", "kitchenette", "study", "meeting room", "open office"]
 BUILDING = ["study", "bedroom", "meeting room", "open office", "kitchenette"]   # per run of rooms
-# a floor, not a city: ~70 000 points and 0.1 s a room, and an agent's map stops at
-# AgentConfig.max_points_in_map (2 M) anyway; more rooms would only fill memory
-MAX_ROOMS = 50
+# a building, not a city: ~70 000 points and 0.1 s a room; bench-scale's 2000-node graphs
+# (AgentConfig.max_nodes) take ~215 rooms, and far more would only fill the memory for minutes
+MAX_ROOMS = 500
 
 
 @dataclass
