@@ -190,3 +190,25 @@ def test_bench_startup_times_no_process_that_failed():
     assert _timed([sys.executable, "-c", "pass"], "python") > 0
     with pytest.raises(ProcessFailed, match=r"KISS-Matcher exited with 3 \(boom\): not timed"):
         _timed([sys.executable, "-c", "import sys; print('boom', file=sys.stderr); sys.exit(3)"], "KISS-Matcher")
+
+
+def test_bench_scale_counts_an_estimate_as_ok_only_when_ground_truth_agrees(monkeypatch):
+    """dense_requested_ok, as coarse_ok and dense_ok: verified and right, not what the
+    estimate says of itself (an estimate claiming success at a wrong pose is not ok)."""
+    from sgreg_core.bench import scale_bench
+    from sgreg_core.net.model import load_model
+
+    model = load_model()
+    [row] = scale_bench.run_scale(model, scale_bench.ScaleConfig(nodes=(50,), repeats=1), log=lambda s: None)
+    assert row["dense_ok"] and row["dense_requested_ok"]
+    real = scale_bench.register_features
+
+    def claims_a_wrong_pose(*args, **kwargs):
+        reg = real(*args, **kwargs)
+        reg.T_levelled = reg.T_levelled.copy()
+        reg.T_levelled[:3, 3] += 3.0          # 3 m off, still "success"
+        return reg
+
+    monkeypatch.setattr(scale_bench, "register_features", claims_a_wrong_pose)
+    [row] = scale_bench.run_scale(model, scale_bench.ScaleConfig(nodes=(50,), repeats=1), log=lambda s: None)
+    assert not row["dense_requested_ok"] and not row["dense_ok"]
