@@ -212,3 +212,30 @@ def test_bench_scale_counts_an_estimate_as_ok_only_when_ground_truth_agrees(monk
     monkeypatch.setattr(scale_bench, "register_features", claims_a_wrong_pose)
     [row] = scale_bench.run_scale(model, scale_bench.ScaleConfig(nodes=(50,), repeats=1), log=lambda s: None)
     assert not row["dense_requested_ok"] and not row["dense_ok"]
+
+
+def test_bench_startup_times_no_shutdown_that_was_a_crash():
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from sgreg_cli.commands.bench_startup import ProcessFailed, _stopped
+
+    code = ("import signal, sys, time\n"
+            "signal.signal(signal.SIGINT, lambda *a: sys.exit({}))\n"
+            "print('up', flush=True)\n"
+            "time.sleep(30)\n")
+    for rc in (0, 5):
+        proc = subprocess.Popen([sys.executable, "-c", code.format(rc)], stdout=subprocess.PIPE,
+                                start_new_session=True)
+        proc.stdout.readline()                 # its handler is set
+        os.killpg(proc.pid, signal.SIGINT)
+        t0 = time.perf_counter()
+        if rc == 0:
+            _stopped(proc, "the agent node")
+            assert time.perf_counter() - t0 < 10
+        else:
+            with pytest.raises(ProcessFailed, match="the agent node exited with 5 on SIGINT: not timed"):
+                _stopped(proc, "the agent node")
