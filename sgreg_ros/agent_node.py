@@ -96,8 +96,11 @@ class AgentNode(SgregNode):
             self.coarse_pub.publish(self.auth.sign(msg, self.topic("sgreg/coarse")))
 
     def on_request(self, raw: bytes) -> None:
-        limit = convert.max_request_bytes(self.core.cfg.max_nodes)
-        if len(raw) > limit:     # no request names more nodes than a graph may hold
+        # no request names more nodes than a graph may hold, or than the one sent holds (max_nodes
+        # may have been lowered live since)
+        held = self.core.graph.num_nodes if self.core.graph is not None else 0
+        limit = convert.max_request_bytes(max(self.core.cfg.max_nodes, held))
+        if len(raw) > limit:
             return self.refusal(self.core.refuse("oversized_message", f"dense request of {len(raw)} bytes "
                                                  f"refused before decoding (max {limit})"),
                                 key="oversized request")
