@@ -93,28 +93,28 @@ def _node_ready(node, exe: str, agent: str, imap) -> tuple[float, float]:
     got = []
     sub = node.create_subscription(CoarseGraph, f"/{agent}/sgreg/coarse", got.append, qos.COARSE_SUB)
     pub = node.create_publisher(InstanceMap, f"/{agent}/mapping/instances", qos.INSTANCES)
-    t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "sgreg_ros", exe, "--ros-args", "-r", f"__ns:=/{agent}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    sent = False
-    while not got and time.perf_counter() - t0 < 60:
-        if proc.poll() is not None:     # crashed while starting: no shutdown to time either
-            node.destroy_subscription(sub)
-            node.destroy_publisher(pub)
-            raise ProcessFailed(f"the {exe} node exited with {proc.returncode} during start-up: not timed")
-        if not sent and pub.get_subscription_count() > 0:
-            pub.publish(instance_map_to_msg(imap, agent, 1, time.time_ns()))
-            sent = True
-        rclpy.spin_once(node, timeout_sec=0.01)
-    ready = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    os.killpg(proc.pid, signal.SIGINT)
-    _stopped(proc, f"the {exe} node")
-    node.destroy_subscription(sub)
-    node.destroy_publisher(pub)
-    if not got:
-        raise ProcessFailed(f"the {exe} node sent no coarse graph within 60 s: not timed")
-    return ready, time.perf_counter() - t1
+    try:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "sgreg_ros", exe, "--ros-args", "-r", f"__ns:=/{agent}"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        sent = False
+        while not got and time.perf_counter() - t0 < 60:
+            if proc.poll() is not None:     # crashed while starting: no shutdown to time either
+                raise ProcessFailed(f"the {exe} node exited with {proc.returncode} during start-up: not timed")
+            if not sent and pub.get_subscription_count() > 0:
+                pub.publish(instance_map_to_msg(imap, agent, 1, time.time_ns()))
+                sent = True
+            rclpy.spin_once(node, timeout_sec=0.01)
+        ready = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        os.killpg(proc.pid, signal.SIGINT)
+        _stopped(proc, f"the {exe} node")
+        if not got:
+            raise ProcessFailed(f"the {exe} node sent no coarse graph within 60 s: not timed")
+        return ready, time.perf_counter() - t1
+    finally:
+        node.destroy_subscription(sub)
+        node.destroy_publisher(pub)
 
 
 def _stop_during_startup(exe: str, after_s: float) -> float:

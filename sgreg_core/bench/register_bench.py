@@ -153,14 +153,14 @@ def _run_sgreg(model, case: Case, cfg: BenchConfig) -> list[dict]:
         # a coarse message carries what encode(dense=False) gives; only matching + pose timed
         src, ref = model.encode(src_graph, dense=False), model.encode(ref_graph, dense=False)
         settings = replace(cfg.pipeline, mode="coarse")
-        t0 = time.perf_counter()
+        t_prep = time.perf_counter()
         pose = settings.pose_config()
         reference = ReferenceCloud(reference_cloud(ref_graph), pose.verify_voxel, pose.footprint_cell)
-        prep_ms = 1e3 * (time.perf_counter() - t0)
-        cpu0 = time.process_time()
+        prep_ms = 1e3 * (time.perf_counter() - t_prep)
+        cpu_match = time.process_time()
         reg = to_map_frames(register_features(model, src, ref, node_cloud(src_graph), reference, settings),
                             *levels)
-        return _sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu0), cfg, levels) | {"ms_map_prep": prep_ms}
+        return _sgreg_row(case, "sgreg_coarse", reg, _cpu_ms(cpu_match), cfg, levels) | {"ms_map_prep": prep_ms}
 
     for method, estimate in (("sgreg_dense", dense), ("sgreg_coarse", coarse)):
         if method in wanted:

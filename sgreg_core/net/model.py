@@ -323,8 +323,8 @@ def load_model(path: str | Path | None = None, text_encoder: TextEncoder | None 
         raise ValueError(f"model weights {path} (with {info_path.name}) cannot be loaded: "
                          f"{' '.join(str(exc).split())[:300]}") from None
     # a .json beside weights of another run would lend them its settings and its name
-    stated = info.get("weights_id")
-    if stated is not None and stated != weights_id(state):
-        raise ValueError(f"model weights {path} are {weights_id(state)}, but {info_path.name} describes "
+    stated, actual = info.get("weights_id"), weights_id(state)
+    if stated is not None and stated != actual:
+        raise ValueError(f"model weights {path} are {actual}, but {info_path.name} describes "
                          f"{stated}: the two files come from different training runs")
     return model.eval()
