@@ -20,7 +20,7 @@ from sgreg_core.runtime.wire import ENCODINGS
 
 from . import convert, qos
 from .node_base import SgregNode
-from .params import ParameterError, params_of, pick
+from .params import parameter_errors, params_of, pick
 
 
 @dataclass
@@ -45,10 +45,8 @@ class AgentNode(SgregNode):
         model = self.load_model()
         self.core = None
         if model is not None:
-            try:
+            with parameter_errors():
                 cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
-            except ValueError as exc:     # parameters each in range that do not fit together
-                raise ParameterError(str(exc)) from None
             self.core = AgentCore(cfg, model)
             self.core.warm_up()
             self.coarse_pub = self.create_publisher(CoarseGraph, self.topic("sgreg/coarse"), qos.COARSE)

@@ -10,6 +10,7 @@ changing nothing."""
 from __future__ import annotations
 
 import difflib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -26,6 +27,17 @@ ROS_OWNED_PREFIXES = ("qos_overrides.",)
 
 class ParameterError(ValueError):
     """A parameter value the node refuses at start."""
+
+
+@contextmanager
+def parameter_errors():
+    """Building configs from parameters that are each in range but do not fit together
+    (min_nodes > max_nodes): the config's ValueError becomes a ParameterError, so the node
+    stops with its one line instead of a traceback."""
+    try:
+        yield
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from sgreg_core.runtime import views
 
 from . import convert, markers, qos
 from .node_base import SgregNode
-from .params import ParameterError, frame_ok, params_of, pick
+from .params import ParameterError, frame_ok, parameter_errors, params_of, pick
 
 
 @dataclass
@@ -87,13 +87,11 @@ class RegistrationNode(SgregNode):
         self.peer_entities: dict[str, list] = {}    # peer -> its publisher and subscriptions
         self.discovery_timer = None
         if model is not None:
-            try:
+            with parameter_errors():
                 agent_cfg = AgentConfig(name=self.name, **pick(AgentConfig, p), graph=GraphConfig(**pick(GraphConfig, p)))
                 pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
                 peers_cfg = PeersConfig(**pick(PeersConfig, p),
                                         pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
-            except ValueError as exc:     # parameters each in range that do not fit together
-                raise ParameterError(str(exc)) from None
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)

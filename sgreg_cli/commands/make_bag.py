@@ -138,34 +138,12 @@ def _xy(text: str) -> tuple[float, float]:
 
 def rescan_transform(scan: str, scan_b: str, gt_path: str):
     """T (4x4) mapping scan_b's points into scan's frame, from an accepted rescan_gt.json entry."""
-    import numpy as np
-
-    from sgreg_core.geometry import is_rigid
+    from sgreg_core.rescan_gt import RescanGTError, load_rescan_gt, transform_between
 
     try:
-        data = json.loads(Path(gt_path).read_text())
-    except (OSError, ValueError) as exc:
-        raise BagSpecError(f"cannot read pseudo ground truth {gt_path}: {exc}") from None
-    pairs = data.get("pairs") if isinstance(data, dict) else None
-    if not isinstance(pairs, list) or not all(isinstance(e, dict) for e in pairs):
-        raise BagSpecError(f"{gt_path} is not a pseudo ground truth: expected {{\"pairs\": [objects]}}")
-    a, b = Path(scan).name, Path(scan_b).name
-    for entry in pairs:
-        if {entry.get("src"), entry.get("ref")} != {a, b}:
-            continue
-        accepted = entry.get("accepted")
-        if not isinstance(accepted, bool):    # "no" would read as accepted
-            raise BagSpecError(f"{gt_path}: 'accepted' of {a} x {b} must be true or false, got {accepted!r}")
-        if not accepted:
-            reasons = entry.get("reasons") or [entry.get("reason") or "no reason given"]
-            why = "; ".join(map(str, reasons if isinstance(reasons, list) else [reasons]))
-            raise BagSpecError(f"{gt_path} rejects {a} x {b}: {why}")
-        # the bag's ground truth must be a rigid transform, or every score against it is wrong
-        if not is_rigid(entry.get("T_src_to_ref")):
-            raise BagSpecError(f"{gt_path}: T_src_to_ref of {a} x {b} is not a 4x4 rigid transform")
-        T = np.asarray(entry["T_src_to_ref"], np.float64)
-        return T if entry["src"] == b else np.linalg.inv(T)
-    raise BagSpecError(f"{gt_path} has no entry for {a} x {b}")
+        return transform_between(load_rescan_gt(gt_path), Path(scan).name, Path(scan_b).name, gt_path)
+    except RescanGTError as exc:
+        raise BagSpecError(str(exc)) from None
 
 
 def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:

@@ -27,7 +27,6 @@ Public API:
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -36,6 +35,7 @@ import numpy as np
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve
+from ..rescan_gt import accepted_directions, load_rescan_gt
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, make_pair, node_iou
 from ..types import InstanceMap
@@ -169,14 +169,11 @@ def _gt_nodes(src: InstanceMap, ref: InstanceMap, T: np.ndarray,
 def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     if not cfg.rescan_gt:
         return []
-    entries = json.loads(resolve(cfg.rescan_gt).read_text())["pairs"]
     directions = []
-    for e in entries:
-        if e.get("accepted") is True and e["src"] in scans and e["ref"] in scans:   # "no" is no
-            T = np.asarray(e["T_src_to_ref"], np.float64)
-            directions.append((e["src"], e["ref"], T))
-            if _room(e["src"]) in cfg.held_out_rooms:
-                directions.append((e["ref"], e["src"], invert_transform(T)))
+    for src, ref, T in accepted_directions(load_rescan_gt(resolve(cfg.rescan_gt)), scans):
+        directions.append((src, ref, T))
+        if _room(src) in cfg.held_out_rooms:
+            directions.append((ref, src, invert_transform(T)))
     # held-out rooms first: they are the headline
     directions.sort(key=lambda d: (_room(d[0]) not in cfg.held_out_rooms, d[0], d[1]))
     out = []

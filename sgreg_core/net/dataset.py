@@ -36,6 +36,7 @@ from ..config import finite_number
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve, source_digest
+from ..rescan_gt import accepted_directions, load_rescan_gt
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
 from ..maps.level import LevelConfig, level_map
@@ -194,13 +195,7 @@ class PairSource:
     def _rescan_list(self, scans: set[str]) -> list[tuple[str, str, np.ndarray]]:
         if not self.cfg.rescan_gt or not resolve(self.cfg.rescan_gt).exists():
             return []
-        entries = json.loads(resolve(self.cfg.rescan_gt).read_text())["pairs"]
-        out = []
-        for e in entries:
-            if e.get("accepted") is True and e["src"] in scans and e["ref"] in scans:
-                T = np.asarray(e["T_src_to_ref"], np.float64)
-                out += [(e["src"], e["ref"], T), (e["ref"], e["src"], invert_transform(T))]
-        return out
+        return accepted_directions(load_rescan_gt(resolve(self.cfg.rescan_gt)), scans, both_ways=True)
 
     def _key(self) -> str:
         """Cache name: everything that changes the pairs (not the pool size: pair i is pair i):

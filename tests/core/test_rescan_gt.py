@@ -1,0 +1,63 @@
+"""One reader of rescan_gt.json for training, bench-register and make-bag: the same entries are
+used by all three, and a malformed file is refused by all three instead of skipped by some."""
+import json
+
+import numpy as np
+import pytest
+
+from sgreg_core.rescan_gt import (RescanGTError, accepted_directions, load_rescan_gt,
+                                  transform_between)
+
+RIGID = [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+
+
+def _write(tmp_path, pairs) -> str:
+    path = tmp_path / "rescan_gt.json"
+    path.write_text(json.dumps({"pairs": pairs}))
+    return str(path)
+
+
+def test_accepted_pairs_between_known_scans_are_the_only_ones_used(tmp_path):
+    pairs = load_rescan_gt(_write(tmp_path, [
+        {"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": RIGID},
+        {"src": "c", "ref": "a", "accepted": False, "reasons": ["low overlap"]},
+        {"src": "x", "ref": "a", "accepted": True, "T_src_to_ref": RIGID},   # x is not a scan here
+    ]))
+    one_way = accepted_directions(pairs, {"a", "b", "c"})
+    assert [(s, r) for s, r, _ in one_way] == [("b", "a")]
+    both = accepted_directions(pairs, {"a", "b", "c"}, both_ways=True)
+    assert [(s, r) for s, r, _ in both] == [("b", "a"), ("a", "b")]
+    np.testing.assert_allclose(both[1][2] @ both[0][2], np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(transform_between(pairs, "a", "b"), RIGID)     # b into a's frame
+    with pytest.raises(RescanGTError, match="rejects a x c: low overlap$"):
+        transform_between(pairs, "a", "c")
+    with pytest.raises(RescanGTError, match="has no entry for a x d$"):
+        transform_between(pairs, "a", "d")
+
+
+@pytest.mark.parametrize("entry, why", [
+    ({"src": "b", "ref": "a", "accepted": "no", "T_src_to_ref": RIGID}, "'accepted' of a x b must be true or false"),
+    ({"src": "b", "ref": "a", "accepted": 1, "T_src_to_ref": RIGID}, "'accepted' of a x b must be true or false"),
+    ({"src": "b", "ref": "a", "accepted": True, "T_src_to_ref": (2 * np.eye(4)).tolist()}, "not a 4x4 rigid"),
+    ({"src": "b", "ref": None, "accepted": True, "T_src_to_ref": RIGID}, "src and ref must be scan names"),
+])
+def test_a_malformed_entry_anywhere_in_the_file_is_refused(tmp_path, entry, why):
+    """Even an entry for scans nobody asked about: a file with one wrong entry is not trusted."""
+    path = _write(tmp_path, [{"src": "d", "ref": "c", "accepted": True, "T_src_to_ref": RIGID}, entry])
+    with pytest.raises(RescanGTError, match=why):
+        load_rescan_gt(path)
+
+
+def test_bench_register_and_training_refuse_a_malformed_file_instead_of_skipping_it(tmp_path):
+    """Before one reader, both skipped an entry whose 'accepted' was "no" (one case or pair
+    fewer, without a word) while make-bag refused it."""
+    from sgreg_core.bench.cases import CaseConfig, _rescan_cases
+    from sgreg_core.net.dataset import DataConfig, PairSource
+
+    path = _write(tmp_path, [{"src": "b", "ref": "a", "accepted": "no", "T_src_to_ref": RIGID}])
+    with pytest.raises(RescanGTError, match="must be true or false, got 'no'"):
+        _rescan_cases(CaseConfig(rescan_gt=path), {"a", "b"})
+    source = PairSource.__new__(PairSource)     # only the reader, without scans to load
+    source.cfg = DataConfig(rescan_gt=path)
+    with pytest.raises(RescanGTError, match="must be true or false, got 'no'"):
+        source._rescan_list({"a", "b"})
