@@ -94,8 +94,8 @@ class RegistrationNode(SgregNode):
                                         pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
-            self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal)
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
+            self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal, on_restart=self._peer_restarted)
             self.peers.follow(self.merger)
             self.peers.cfg = replace(self.peers.cfg, merged_tolerance=(self.merger.cfg.cycle_m,
                                                                       self.merger.cfg.cycle_deg))
@@ -217,9 +217,10 @@ class RegistrationNode(SgregNode):
     def on_coarse(self, raw: bytes, peer: str) -> None:
         graph = self._decode(convert.coarse_from_msg, raw, CoarseGraph, "coarse", peer)
         if graph is not None:
-            self.merger.set_level(peer, graph.level)
             self.guarded(f"coarse graph {graph.sequence} of {graph.agent_id}",
                          lambda: self.publish_all([self.peers.on_coarse(graph, self.clock_s())]))
+            # after the graph is taken: a restart seen in it forgets the peer's old levelling too
+            self.merger.set_level(peer, graph.level)
 
     def on_dense(self, raw: bytes, peer: str) -> None:
         graph = self._decode(convert.dense_from_msg, raw, DenseGraph, "dense", peer,
@@ -268,6 +269,12 @@ class RegistrationNode(SgregNode):
         if len(result.attached) > 1:
             self.tf_pub.publish(convert.tf_msg(self.merger.raw_poses(), self.merger.cfg.merged_frame,
                                                self.now_ns()))
+
+    def _peer_restarted(self, peer: str) -> None:
+        """Every link to or from the peer's old map goes from the merge and the views at once:
+        its new map lies in another frame (Peers.on_restart)."""
+        self.merger.forget(peer)
+        self.matches.pop(peer, None)
 
     def on_tick(self) -> None:
         now = self.clock_s()

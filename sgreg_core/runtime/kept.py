@@ -7,6 +7,7 @@ Public API:
     centers_of(ids, node_ids, centers)      {node id: center} of the ids found
     levelled_alike(a, b) -> bool            two levelling rotations are the same
     median_shift(then, node_ids, centers)   median movement of nodes since `then`
+    dense_shift(graph, dense)               median movement of a dense answer's nodes in the graph
     moved_between(graph, dense, max_shift)  a dense answer's nodes no longer where the graph has them
 """
 from __future__ import annotations
@@ -52,9 +53,15 @@ def median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.
     return float(np.median([np.linalg.norm(now[i] - then[i]) for i in now])) if now else float("inf")
 
 
+def dense_shift(graph: GraphMessage, dense: GraphMessage) -> float:
+    """Median distance between where a dense answer has its nodes and where the peer's coarse
+    graph has them (inf when the graph has fewer than half of them)."""
+    in_graph = centers_of(dense.nodes.node_ids, graph.nodes.node_ids, graph.nodes.centers)
+    return median_shift(in_graph, dense.nodes.node_ids, dense.nodes.centers)
+
+
 def moved_between(graph: GraphMessage, dense: GraphMessage, max_shift_m: float) -> bool:
     """Whether the nodes of a dense answer lie more than max_shift_m (median) from where the
-    peer's coarse graph puts them, or the graph has none of them: the two are not in one
-    frame."""
-    in_graph = centers_of(dense.nodes.node_ids, graph.nodes.node_ids, graph.nodes.centers)
-    return median_shift(in_graph, dense.nodes.node_ids, dense.nodes.centers) > max_shift_m
+    peer's coarse graph puts them, or the graph has too few of them: the two are not in one
+    frame. A shift that cannot be measured (NaN) counts as moved."""
+    return not dense_shift(graph, dense) <= max_shift_m

@@ -15,7 +15,9 @@ steps on the same links, so all of them publish the same tree:
    frames), and one per consistent triangle a -> c -> b through a third agent and per pair of
    measurements of its two other sides (up to 4 per third agent). When the two agents of a
    pair disagree and no third agent's links decide, neither link is kept (two maps cannot tell
-   which of their two estimates is wrong). The others are taken in order of support, then confidence; one joins the accepted set when it
+   which of their two estimates is wrong). The others are taken in order of support, then
+   confidence, then published before withheld (a link its agent withholds as
+   disputed_by_cycles, kept so the cycles can re-judge it); one joins the accepted set when it
    connects two groups of agents, or when it agrees with the path the accepted set already
    gives between its ends. Otherwise it breaks the cycles it is in and is rejected, with the
    reason. A wrong link in a cycle of right ones closes no consistent cycle, so it comes after
@@ -23,10 +25,12 @@ steps on the same links, so all of them publish the same tree:
    orders them); a link in no cycle (a bridge) cannot be checked and is kept, as the
    pair's own verdict and confirmation already are. When a rejected link is as well backed as
    the one accepted link on the path it contradicts that is no better backed than it (the rest
-   of the path being better backed), only the order decided between those two: both are set
-   aside as contested (and disputed, so their agents withhold them) and the rest is merged
-   again, so an agent that two equally trusted links place differently waits unattached until
-   a further link settles it.
+   of the path being better backed), or as the other link of its own pair, only the order
+   decided between those two: both are set aside as contested (and disputed, so their agents
+   withhold them) and the rest is merged again, so an agent that two equally trusted links
+   place differently waits unattached until a further link settles it. In a longer cycle of
+   equally weak links (a ring measured one way, three pairs each agreeing with itself) no
+   single link is singled out, and the order stands.
 3. Poses: the merged frame is the levelled frame of the anchor, the lowest agent id of the
    largest group (so a lone agent with a low id cannot hide the fleet); every other agent's
    pose is the confidence-weighted average over all its accepted measurements of (neighbour
@@ -117,6 +121,8 @@ class Link:
     T: np.ndarray = field(compare=False, hash=False)
     confidence: float = 1.0
     stamp_ns: int = 0        # of the newer map it was estimated from
+    # kept only for the cycles to re-judge: its agent withholds it (disputed_by_cycles)
+    withheld: bool = False
 
     @property
     def key(self) -> tuple[str, str]:
@@ -275,13 +281,19 @@ def _greedy(order: list[Link], names: list[str], support: dict, triangles: dict,
             # disputed by other agents' links when the path runs through them, or when the link
             # of the same pair it contradicts is backed by a triangle
             # (the pair's accepted link is its edge: the other one, as this one is rejected)
-            direct = l.dst in forest.graph[l.src]
-            if not direct or triangles[forest.graph[l.src][l.dst].key]:
+            edge = forest.graph[l.src].get(l.dst)
+            if edge is None or triangles[edge.key]:
                 disputed.add(l.key)
-            # one link against one: the rest of the path backs the accepted link's side, and
-            # the two are equally backed (in a longer cycle of weak links, no single link is
-            # singled out by the cycle, and the order of support and confidence stands)
-            if not direct:    # a pair at odds with itself: step 2
+            if edge is not None:
+                # a pair at odds with itself, each side as well backed by other agents' links
+                # (one agent misplaced against two that agree, or the reverse): only the order
+                # chose, so the pair waits
+                if support[edge.key] == support[l.key]:
+                    contested.add(frozenset(l.key))
+            else:
+                # one link against one: the rest of the path backs the accepted link's side, and
+                # the two are equally backed (in a longer cycle of weak links, no single link is
+                # singled out by the cycle, and the order of support and confidence stands)
                 weak = [m for m in forest.path_links(l.src, l.dst) if support[m.key] <= support[l.key]]
                 if len(weak) == 1:
                     contested |= {frozenset(l.key), frozenset(weak[0].key)}
@@ -314,8 +326,12 @@ def merge(links: list[Link], agents: list[str] | None = None,
             rejected.append((l, f"{l.src} and {l.dst} disagree about their pair and no third agent's "
                                 "links decide"))
     support = {k: pair[k] + triangles[k] for k in pair}
+    # at equal support and confidence (1.0 is common: float32 saturates), a withheld link comes
+    # after the published ones: its own agent says the merged frame disagrees with it, and the
+    # agents' names must not let it push out the links that placed that frame (and with them
+    # the guard that withholds it)
     order = sorted((l for l in links if l.key not in undecided),
-                   key=lambda l: (-support[l.key], -l.confidence, l.key))
+                   key=lambda l: (-support[l.key], -l.confidence, l.withheld, l.key))
     # a cycle that only the order of equally backed links decided keeps none of them (their
     # agents wait for a link that settles it); the rest is merged again without them
     contested: set = set()
@@ -427,7 +443,7 @@ class Links:
         self._heard_ns[(agent, peer)] = stamp_ns
         if keep:
             self._links[(agent, peer)] = Link(agent, peer, np.asarray(T, np.float64), float(confidence),
-                                              stamp_ns)
+                                              stamp_ns, withheld=not verified)
         elif link_state != "confirmed":
             self._links.pop((agent, peer), None)
         return True
@@ -488,8 +504,9 @@ class Merger:
     def take(self, agent: str, peer: str, T: np.ndarray, verified: bool, reason: str,
              link_state: str, confidence: float, stamp_ns: int) -> bool:
         """Links.take: False when refused."""
-        # as float32, what the other agents' mergers get over the wire: the same order for all
-        confidence = float(np.float32(confidence))
+        # as float32 in [0, 1], what the other agents' mergers get over the wire (convert clips
+        # it): the same order for all, and no result wins every tie by a confidence above 1
+        confidence = float(np.float32(np.clip(confidence, 0.0, 1.0)))
         return self.links.take(agent, peer, T, verified, reason, link_state, confidence, stamp_ns)
 
     def drop(self, agent: str, peer: str) -> None:

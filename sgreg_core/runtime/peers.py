@@ -73,7 +73,7 @@ from ..maps.level import Levelling
 from ..pipeline import PipelineConfig, Registration, register_features, to_map_frames
 from .agent import AgentCore
 from .intake import check_message
-from .kept import Kept, centers_of, levelled_alike, median_shift, moved_between
+from .kept import Kept, centers_of, dense_shift, levelled_alike, median_shift, moved_between
 from .messages import DenseRequestMessage, Estimate, GraphMessage
 
 
@@ -324,11 +324,15 @@ class Peers:
     and counters."""
 
     def __init__(self, cfg: PeersConfig, agent: AgentCore, model: SGRegModel,
-                 log: Callable[[str], None] = print):
+                 log: Callable[[str], None] = print,
+                 on_restart: Callable[[str], None] = lambda peer: None):
         self.cfg = cfg
         self.agent = agent
         self.model = model
         self.log = log
+        # told a peer's id as soon as its restart is seen, before anything of its new stream is
+        # estimated: every link to its old map goes (the node's merger forgets them)
+        self.on_restart = on_restart
         self.links: dict[str, PeerLink] = {}       # peer id -> what the agent knows of it
         self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
         self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
@@ -468,7 +472,7 @@ class Peers:
         msg = link.coarse
         timings: dict = {}
         t0 = time.perf_counter()
-        self._recheck_kept(link, msg)
+        moved = self._recheck_kept(link, msg)
         kept = link.kept
         reg = register_features(self.model, msg.nodes, self.agent.features,
                                 link.dense_cloud, self._own_reference(link.dense_cloud),
@@ -480,12 +484,17 @@ class Peers:
         if passes and link.dense_cloud is None:
             link.prompt = True    # nothing to check it on: only the peer's points can
         request = self._maybe_request(link, reg, now)
-        if link.dense_cloud is None and request is not None:
+        # after the request: a link still confirmed asks for the new points at once
+        withdrawn = self._map_moved(link, moved, now)
+        if link.dense_cloud is None and request is not None and not withdrawn:
             # Nothing to verify this estimate against: the dense answer to the request answers
             # this query (the paper's coarse-to-fine step), instead of a result bound to fail.
+            # A link just withdrawn says so now: the mergers stop placing the peer at once.
             self._count("deferred_to_dense")
             return None, request
         est = self._judge(link, reg, msg.digest, timings, t0, now)
+        if withdrawn:   # the link's own pairs, re-checked on the maps of now, contradict it
+            est = replace(est, verified=False, reason="contradicted")
         if self.cfg.prompt_request and link.prompt and request is None:
             request = self._send_wanted(link, now)    # the estimate made a coarse candidate
         return est, request
@@ -648,12 +657,14 @@ class Peers:
                 self.log(f"{stream} graph from {msg.agent_id} held back: sequence {msg.sequence} "
                          f"after {last} ({counter.replace('_', ' ')})")
                 return None
-            if msg.sequence < last:      # a stream that went back and goes on: a new one
+            if held < last:      # a stream that went back and goes on: a new one (even when it
+                # goes on to the old stream's last sequence)
                 self._count("peer_restart")
                 self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {held}, {msg.sequence}): "
                          "forgetting its old map")
                 link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
                 self._witnesses.pop(msg.agent_id, None)
+                self.on_restart(msg.agent_id)
         elif stream == "coarse" and last is not None and msg.sequence - last > 1:
             # lost on the way (a full queue, the network); dense answers also go to others
             self.counters["missed_messages"] += msg.sequence - last - 1
@@ -685,17 +696,18 @@ class Peers:
         timings["shape"] = timings.get("shape", 0.0) + 1e3 * (time.perf_counter() - t0)
         return replace(nodes, points=points, valid=valid, z=z)
 
-    def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> None:
+    def _recheck_kept(self, link: PeerLink, msg: GraphMessage) -> float:
         """Drop the kept correspondences and the peer's dense cloud when the nodes they come
         from moved in either map since they were kept, or the peer's map was levelled anew (they
         are in its levelled frame of then); only the kept correspondences when the own map was
         (the peer's cloud is in the peer's frame); without kept correspondences, the cloud when
-        the nodes of its dense answer moved in the peer's map."""
+        the nodes of its dense answer moved in the peer's map. Returns how far they moved (0
+        when nothing was dropped for it), for _map_moved: a new levelling moves no frame."""
         if link.dense is not None and not levelled_alike(link.dense.level, msg.level) \
                 and (link.kept is not None or link.dense_cloud is not None):
             self.log(f"kept correspondences with {link.peer_id} dropped: its map was levelled anew")
             self._drop_dense(link)
-            return
+            return 0.0
         if link.kept is not None and not levelled_alike(link.kept.own_level, self.agent.level.R):
             self.log(f"kept correspondences with {link.peer_id} dropped: the own map was levelled anew")
             self._drop_kept(link)
@@ -704,19 +716,32 @@ class Peers:
         self._drop_kept_of_old_levelling(link, msg.level)
         if link.kept is None:
             # the peer's points alone: stale once the peer's frame moved under them
-            if link.dense_cloud is not None and link.dense is not None \
-                    and moved_between(msg, link.dense, self.cfg.kept_max_shift_m):
-                self.log(f"dense points of {link.peer_id} dropped: their nodes moved in its map "
-                         "since the dense exchange")
-                self._drop_dense(link)
-            return
-        own = self.agent.features
-        shift = max(median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
-                    median_shift(link.kept.own_nodes, own.node_ids, own.centers))
-        if shift > self.cfg.kept_max_shift_m:
-            self.log(f"kept correspondences with {link.peer_id} dropped: their nodes moved "
-                     f"{shift:.2f} m since the dense exchange")
+            if link.dense_cloud is None or link.dense is None:
+                return 0.0
+            shift, what = dense_shift(msg, link.dense), f"dense points of {link.peer_id}"
+        else:
+            own = self.agent.features
+            shift = max(median_shift(link.kept.peer_nodes, msg.nodes.node_ids, msg.nodes.centers),
+                        median_shift(link.kept.own_nodes, own.node_ids, own.centers))
+            what = f"kept correspondences with {link.peer_id}"
+        if not shift <= self.cfg.kept_max_shift_m:     # NaN: cannot be told, dropped
+            self.log(f"{what} dropped: their nodes moved {shift:.2f} m since the dense exchange")
             self._drop_dense(link)
+            return shift
+        return 0.0
+
+    def _map_moved(self, link: PeerLink, shift: float, now: float) -> bool:
+        """The nodes a confirmed link was verified on moved (a measured median shift, in either
+        map): a map's frame moved under them (re-anchored, a loop closed), so the link's T may
+        no longer hold. It is withdrawn, and its next result tells the mergers, rather than
+        placing a moved map on /tf until new points contradict it. Nodes that are gone
+        (shift inf) say nothing of the frame: the link stays, its points dropped. True when
+        withdrawn."""
+        if link.confirmed is None or not (self.cfg.kept_max_shift_m < shift < np.inf):
+            return False
+        self._withdraw(link, "withdrawn_map_moved", f"the nodes it was verified on moved {shift:.2f} m "
+                       "in a map since the dense exchange", None, now)
+        return True
 
     def _drop_kept_of_old_levelling(self, link: PeerLink, peer_level: np.ndarray) -> None:
         """Forget the kept correspondences when the peer has levelled its map anew since: they

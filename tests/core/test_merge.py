@@ -254,6 +254,46 @@ def test_one_wrong_link_in_a_ring_of_weak_links_leaves_the_rest_attached():
     assert_poses(result)
 
 
+def test_a_withheld_link_does_not_push_out_the_links_that_placed_the_frame():
+    """Right a -> c and c -> b place b; a's wrong a -> b (as sure, measured one way: no link
+    closes a cycle) is withheld by a as disputed_by_cycles, and kept so the cycles can re-judge
+    it. Ordered by name, ('a', 'b') came first: it was accepted, c's right link rejected, the
+    merged frame then agreed with it, and a published it as verified. A withheld link now
+    comes after the published ones as well backed and as sure: it stays rejected and
+    disputed, however often it is taken again."""
+    from sgreg_core.runtime.merge import Merger
+
+    m = Merger(MergeConfig(), "a")
+    for s_, d in ("ac", "cb"):
+        m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, S)
+    m.update()
+    wrong = from_4dof(np.radians(25.0), (3.0, 0.0, 0.0)) @ true_link("a", "b").T
+    for k in range(3):
+        m.take("a", "b", wrong, False, "disputed_by_cycles", "confirmed", 0.9, (2 + k) * S)
+        m.update()
+        assert sorted(l.key for l in m.result.accepted) == [("a", "c"), ("c", "b")]
+        assert "b" in m.disputed_peers()
+    assert_poses(m.result)
+
+
+def test_an_agent_whose_links_two_others_contradict_as_strongly_waits_unattached():
+    """b's two links share one wrong 4 m slide (b misplaced itself), a -> b and c -> b are right,
+    a and c agree. {a -> b, c -> b, a - c} and {b -> a, b -> c, a - c} each close a consistent
+    triangle: every disagreeing pair is as well backed on both sides. Ordered by confidence, a
+    surer b was placed 4 m off and a's and c's right links were disputed; now b waits."""
+    slide = from_4dof(0.0, (4.0, 0.0, 0.0))
+    right = [Link(s_, d, true_link(s_, d).T, 0.95) for s_, d in ("ab", "cb", "ac", "ca")]
+    wrong = [Link("b", d, true_link("b", d).T @ slide, 0.99) for d in "ac"]
+    result = merge(right + wrong)
+    assert result.attached == ["a", "c"] and sorted(l.key for l in result.accepted) == [("a", "c"), ("c", "a")]
+    assert all(why.startswith("contested") for _, why in result.rejected) and len(result.rejected) == 4
+    assert_poses(result)
+    # one more agent's word settles it: d agrees with a and c about b
+    settled = merge(right + wrong + [Link(s_, d, true_link(s_, d).T, 0.95) for s_, d in ("db", "da", "ad")])
+    assert "b" in settled.attached and ("b", "a") in [l.key for l, _ in settled.rejected]
+    assert_poses(settled)
+
+
 def test_peers_placed_through_a_triangle_are_placed_by_others():
     from sgreg_core.runtime.merge import Merger
 

@@ -527,6 +527,9 @@ def confirmed_link(model, graphs, cfg=None):
 
 def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
     a, b, reg, logs = confirmed_link(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    # no kept pairs or peer points left to show the move itself (that withdraws the link at
+    # once: test_a_map_that_moves_under_a_confirmed_link_withdraws_it)
+    reg.links["b"].kept, reg.links["b"].dense_cloud = None, None
     # b's map frame moves (e.g. its SLAM re-anchored): a well-supported estimate from new data
     # now disagrees with the published link
     W = yaw_transform(np.radians(60.0), (2.0, 1.0, 0.0))
@@ -619,43 +622,58 @@ def test_a_merged_estimate_weighs_the_pose_its_kept_correspondences_came_from(mo
     assert bounds[0].size > n and np.all(bounds[0][:-n] == cfg.coarse_pose.noise_bound)
 
 
-def test_kept_correspondences_are_dropped_when_a_map_moves_under_them(model, graphs):
-    a, b, reg, _ = confirmed_link(model, graphs)
+def test_a_map_that_moves_under_a_confirmed_link_withdraws_it(model, graphs):
+    """b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
+    cloud they were verified on, no longer describe b's map, nor does the link's T. The link is
+    withdrawn at once, and the estimate says so (link none), so that no merger keeps placing
+    b's moved map on /tf while new points are awaited (a peer that never answers again would
+    keep it there for good)."""
+    a, b, reg, logs = confirmed_link(model, graphs)
     assert reg.links["b"].kept is not None
-    # b's map jumps (its front end re-anchored it): the kept correspondences, and the dense
-    # cloud they were verified on, no longer describe b's map
     jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
     b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
-    assert reg.links["b"].kept is None and reg.links["b"].dense_cloud is None
-    # the coarse estimate passes the verdict with no points to check it on: they are asked for
-    # at once (prompt_request), and their dense answer answers the query
-    assert est is None and req is not None
-    assert reg.counters["kept_dropped"] == 1 and reg.counters["deferred_to_dense"] == 2
+    link = reg.links["b"]
+    assert link.kept is None and link.dense_cloud is None and link.confirmed is None
+    assert est is not None and not est.verified and est.reason == "contradicted" and est.link != "confirmed", est
+    assert reg.counters["withdrawn_map_moved"] == 1 and any("withdrawn: the nodes it was verified on moved"
+                                                            in line for line in logs)
+    # new points are asked for at once (prompt_request), and the next coarse graph waits for them
+    assert req is not None and reg.counters["kept_dropped"] == 1
+    est, req = reg.on_coarse(b.coarse_message(4), now=1.6)
+    assert not (est is not None and est.verified)
     # without prompt_request: new points are asked for after the search interval (2 s), not
     # the confirmed link's (5 s), and the same two graphs may be asked again
     a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(prompt_request=False))
     b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
-    assert est.mode == "coarse" and not est.verified and est.reason == "no_peer_cloud_to_verify"
+    assert est.mode == "coarse" and not est.verified and est.link != "confirmed"
     assert reg.links["b"].dense_cloud is None and req is None    # asked 1.5 s ago
     est, req = reg.on_coarse(b.coarse_message(4), now=2.0)
     assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
 
 
+def test_a_peer_map_that_only_grows_keeps_its_link_and_points(model, graphs):
+    a, b, reg, logs = confirmed_link(model, graphs)
+    drift(b, graphs, 2, 1.5)
+    est, _ = reg.on_coarse(b.coarse_message(3), now=1.5)
+    assert est.verified and reg.links["b"].kept is not None and reg.counters["withdrawn_map_moved"] == 0
+
+
 def test_the_peers_points_are_dropped_when_its_map_jumps_with_no_kept_correspondences(model, graphs):
     """A confirmed link whose kept correspondences are gone (a refused merged estimate drops
-    them) still holds the peer's points: when the peer's frame jumps they go too, and new ones
-    are asked for at once, instead of every estimate failing on the old points while the link
-    stays confirmed until the confirmed link's request interval."""
+    them) still holds the peer's points: when the peer's frame jumps they go too, with the
+    link, and new ones are asked for at once."""
     a, b, reg, logs = confirmed_link(model, graphs)
     link = reg.links["b"]
     link.kept = None
     jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
     b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
-    assert link.dense_cloud is None and any("moved in its map" in line for line in logs)
-    assert est is None and req is not None and reg.counters["deferred_to_dense"] == 2
+    assert link.dense_cloud is None and any(f"dense points of b dropped: their nodes moved" in line
+                                            for line in logs)
+    assert est is not None and est.reason == "contradicted" and est.link != "confirmed" and req is not None
+    assert reg.counters["withdrawn_map_moved"] == 1
     # a peer map that only grows keeps its points
     a, b, reg, logs = confirmed_link(model, graphs)
     reg.links["b"].kept = None
@@ -693,6 +711,42 @@ def test_duplicate_out_of_order_and_restart(model, graphs):
     # taken: the restarted peer is asked for dense data (its old cloud is forgotten)
     assert reg.counters["peer_restart"] == 1 and req is not None
     assert any("restarted" in line for line in logs)
+
+
+def test_a_restart_is_seen_even_when_the_new_stream_reaches_the_old_last_number(model, graphs):
+    """Old stream 1, 2; new stream 1, 2: the held 1 went back, so the 2 after it is a new
+    stream, not the old one going on with a link to a map that is gone."""
+    a, b, reg, logs = make_agents(model, graphs)
+    forgotten = []
+    reg.on_restart = forgotten.append
+    reg.on_coarse(b.coarse_message(1), now=0.0)
+    reg.on_coarse(b.coarse_message(2), now=1.0)
+    old = reg.links["b"]
+    assert reg.on_coarse(b.coarse_message(1), now=2.0) == (None, None)      # held
+    reg.on_coarse(b.coarse_message(2), now=3.0)
+    assert reg.counters["peer_restart"] == 1 and reg.links["b"] is not old and forgotten == ["b"]
+
+
+def test_a_restarted_peer_leaves_the_merge_before_its_new_map_is_estimated(model, graphs):
+    """The merger held a's confirmed link to b (and b's to a); b restarts with a map in a new
+    frame. on_restart (the node's merger.forget) takes every link of b's old map out at once:
+    before, the merger kept placing b's new map with the old link."""
+    from sgreg_core.runtime.merge import MergeConfig, Merger
+
+    a, b, reg, _ = confirmed_link(model, graphs)
+    merger = Merger(MergeConfig(), "a")
+    reg.on_restart = merger.forget
+    merger.take("a", "b", T_GT, True, "ok", "confirmed", 0.95, 1_000_000_000)
+    merger.take("b", "a", np.linalg.inv(T_GT), True, "ok", "confirmed", 0.95, 1_000_000_000)
+    merger.update()
+    assert "b" in merger.result.attached
+    b.set_graph(moved_graph(graphs[1], yaw_transform(1.2, (5.0, -3.0, 0.0)), np.random.default_rng(11)),
+                1, 3_000_000_000)
+    reg.on_coarse(b.coarse_message(1), now=3.0)          # held: it goes back
+    est, _ = reg.on_coarse(b.coarse_message(2), now=4.0)
+    assert reg.counters["peer_restart"] == 1 and merger.links.current() == []
+    merger.update()
+    assert "b" not in merger.result.attached and not (est is not None and est.verified)
 
 
 def test_one_forged_sequence_neither_locks_out_nor_restarts(model, graphs):
