@@ -223,12 +223,18 @@ def coarse_from_msg(msg: CoarseGraph) -> GraphMessage:
                         extents=_f32(msg.extents, n, "extents"), level=_level(msg.level))
 
 
+def _is_unit_quaternion(q: np.ndarray) -> bool:
+    """Finite, each component within [-1, 1] (so that a huge one fails here rather than
+    overflowing the norm), and of norm 1 within 1e-3."""
+    return bool(np.isfinite(q).all() and np.abs(q).max() <= 1.0 + 1e-3 and abs(np.linalg.norm(q) - 1.0) <= 1e-3)
+
+
 def _level(q) -> np.ndarray:
     """The sender's levelling rotation from its quaternion: a unit quaternion that tilts by at
     most MAX_TILT_DEG (levelling never turns a map about z, and a map is never on its
     side)."""
     v = np.array([q.x, q.y, q.z, q.w], np.float64)
-    if not np.isfinite(v).all() or abs(np.linalg.norm(v) - 1.0) > 1e-3:
+    if not _is_unit_quaternion(v):
         raise ConversionError(f"level is not a unit quaternion: {v.tolist()}")
     R = Rotation.from_quat(v).as_matrix()
     if tilt_deg(R) > MAX_TILT_DEG:
@@ -377,7 +383,7 @@ def result_from_msg(msg: RegistrationResult) -> Result:
             raise ConversionError(f"{name} is {value!r}, not {want!r}")
     r = msg.transform.transform.rotation
     q = np.array([r.x, r.y, r.z, r.w], np.float64)
-    if not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1.0) > 1e-3:   # not normalised away
+    if not _is_unit_quaternion(q):   # not normalised away
         raise ConversionError(f"transform rotation is not a unit quaternion: {q.tolist()}")
     T = transform_from_msg(msg.transform)
     if not np.isfinite(T).all() or not np.isfinite(msg.confidence):

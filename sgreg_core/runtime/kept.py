@@ -55,8 +55,12 @@ def median_shift(then: dict[int, np.ndarray], node_ids: np.ndarray, centers: np.
 
 def dense_shift(graph: GraphMessage, dense: GraphMessage) -> float:
     """Median distance between where a dense answer has its nodes and where the peer's coarse
-    graph has them (inf when the graph has fewer than half of them)."""
-    in_graph = centers_of(dense.nodes.node_ids, graph.nodes.node_ids, graph.nodes.centers)
+    graph has them (inf when the graph has fewer than half of them: counted against the
+    answer's nodes, so that one node the two share cannot stand for all of them)."""
+    ids = np.unique(dense.nodes.node_ids)
+    in_graph = centers_of(ids, graph.nodes.node_ids, graph.nodes.centers)
+    if 2 * len(in_graph) < len(ids):
+        return float("inf")
     return median_shift(in_graph, dense.nodes.node_ids, dense.nodes.centers)
 
 

@@ -223,7 +223,9 @@ class _Forest:
 
     def path_T(self, a: str, b: str) -> np.ndarray | None:
         """T_a^b by the pair's own accepted link where there is one, else along the forest
-        (None when a and b are not joined)."""
+        (None when a and b are not joined). A pair's second measurement is checked against its
+        first alone, which the tree path was checked against: the two may lie up to twice the
+        cycle tolerance from that path."""
         if a == b:
             return np.eye(4)
         if b in self.graph[a]:
