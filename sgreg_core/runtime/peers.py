@@ -303,6 +303,8 @@ class PeerLink:
     asked: list = field(default_factory=list)    # recent request sequences: dense answers must name one
     heard_at: float = -np.inf                    # when its last accepted message arrived
     held: dict = field(default_factory=dict)     # stream -> a sequence outside the window, held
+    went_back: dict = field(default_factory=dict)   # stream -> whether the held one starts anew
+    last_stamp: dict = field(default_factory=dict)  # stream -> map stamp of the last one taken
     last_request_at: float = -np.inf
     gave_up: bool = False        # its last request went unanswered after every retry
     prompt: bool = False         # a coarse estimate waits for the peer's points (prompt_request)
@@ -647,29 +649,34 @@ class Peers:
         window = self.cfg.sequence_window
         if stream == "dense" and last is not None:
             window *= max(1.0, now - link.last_seq_at[stream])
-        if last is not None and not 0 < msg.sequence - last <= window:
-            held = link.held.get(stream)
-            if held is None or msg.sequence != held + 1:    # held until the next message continues it
-                link.held[stream] = msg.sequence
-                counter = ("duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
-                           if msg.sequence < last else "sequence_jump")
-                self.agent.refuse(counter, "")
-                self.log(f"{stream} graph from {msg.agent_id} held back: sequence {msg.sequence} "
-                         f"after {last} ({counter.replace('_', ' ')})")
-                return None
-            if held < last:      # a stream that went back and goes on: a new one (even when it
-                # goes on to the old stream's last sequence)
-                self._count("peer_restart")
-                self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {held}, {msg.sequence}): "
-                         "forgetting its old map")
-                link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
-                self._witnesses.pop(msg.agent_id, None)
-                self.on_restart(msg.agent_id)
+        held = link.held.get(stream)
+        continues_held = held is not None and msg.sequence == held + 1
+        if last is not None and not 0 < msg.sequence - last <= window and not continues_held:
+            # held until the next message continues it
+            link.held[stream] = msg.sequence
+            # a number gone back, or the last one again on other maps (a true duplicate repeats
+            # the stamp): the first of a new stream if the next one continues it
+            link.went_back[stream] = msg.sequence < last or (
+                msg.sequence == last and msg.stamp_ns != link.last_stamp.get(stream))
+            counter = ("duplicate_sequence" if msg.sequence == last else "out_of_order_sequence"
+                       if msg.sequence < last else "sequence_jump")
+            self.agent.refuse(counter, "")
+            self.log(f"{stream} graph from {msg.agent_id} held back: sequence {msg.sequence} "
+                     f"after {last} ({counter.replace('_', ' ')})")
+            return None
+        if continues_held and link.went_back.get(stream):     # a stream that went back and goes on
+            self._count("peer_restart")
+            self.log(f"peer {msg.agent_id} restarted (sequence {last} -> {held}, {msg.sequence}): "
+                     "forgetting its old map")
+            link = self.links[msg.agent_id] = PeerLink(msg.agent_id)
+            self._witnesses.pop(msg.agent_id, None)
+            self.on_restart(msg.agent_id)
         elif stream == "coarse" and last is not None and msg.sequence - last > 1:
             # lost on the way (a full queue, the network); dense answers also go to others
             self.counters["missed_messages"] += msg.sequence - last - 1
         link.held.pop(stream, None)
         link.last_seq[stream], link.last_seq_at[stream] = msg.sequence, now
+        link.last_stamp[stream] = msg.stamp_ns
         link.heard_at = now
         return link
 

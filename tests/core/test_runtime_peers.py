@@ -727,6 +727,24 @@ def test_a_restart_is_seen_even_when_the_new_stream_reaches_the_old_last_number(
     assert reg.counters["peer_restart"] == 1 and reg.links["b"] is not old and forgotten == ["b"]
 
 
+def test_a_restart_after_one_message_is_seen_by_its_new_maps(model, graphs):
+    """b sent one coarse graph and restarted: its new stream starts at the same number. A true
+    duplicate repeats the map stamp; the new stream's first graph comes from other maps (a new
+    stamp), so the next number that continues it starts a new stream."""
+    a, b, reg, logs = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(1), now=0.0)
+    assert reg.on_coarse(b.coarse_message(1), now=0.1) == (None, None)       # a duplicate
+    reg.on_coarse(b.coarse_message(2), now=1.0)
+    assert reg.counters["duplicate_sequence"] == 1 and reg.counters["peer_restart"] == 0
+    a, b, reg, logs = make_agents(model, graphs)
+    reg.on_coarse(b.coarse_message(1), now=0.0)
+    old = reg.links["b"]
+    b.set_graph(graphs[1], 1, 5_000_000_000)          # restarted: the same number, new maps
+    assert reg.on_coarse(b.coarse_message(1), now=5.0) == (None, None)
+    reg.on_coarse(b.coarse_message(2), now=6.0)
+    assert reg.counters["peer_restart"] == 1 and reg.links["b"] is not old
+
+
 def test_a_restarted_peer_leaves_the_merge_before_its_new_map_is_estimated(model, graphs):
     """The merger held a's confirmed link to b (and b's to a); b restarts with a map in a new
     frame. on_restart (the node's merger.forget) takes every link of b's old map out at once:
