@@ -670,7 +670,7 @@ def test_the_peers_points_are_dropped_when_its_map_jumps_with_no_kept_correspond
     jumped = moved_graph(graphs[1], yaw_transform(1.0, (3.0, 0.0, 0.0)), np.random.default_rng(3))
     b.set_graph(jumped, 2, 1_500_000_000)
     est, req = reg.on_coarse(b.coarse_message(3), now=1.5)
-    assert link.dense_cloud is None and any(f"dense points of b dropped: their nodes moved" in line
+    assert link.dense_cloud is None and any("dense points of b dropped: their nodes moved" in line
                                             for line in logs)
     assert est is not None and est.reason == "contradicted" and est.link != "confirmed" and req is not None
     assert reg.counters["withdrawn_map_moved"] == 1
