@@ -20,12 +20,12 @@ Public API:
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from sgreg_core.geometry import invert_transform, is_rigid
+from .geometry import invert_transform, is_rigid
 
 
 class RescanGTError(ValueError):
@@ -38,7 +38,7 @@ class RescanPair:
     ref: str
     accepted: bool
     T: np.ndarray | None = None                 # src -> ref, set when accepted
-    reasons: tuple[str, ...] = field(default=())  # why a rejected pair was rejected
+    reasons: tuple[str, ...] = ()               # why a rejected pair was rejected
 
 
 def load_rescan_gt(path: str | Path) -> list[RescanPair]:

@@ -95,7 +95,7 @@ class RegistrationNode(SgregNode):
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
-            self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal, on_restart=self._peer_restarted)
+            self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal, on_restart=self._forget_peer)
             self.peers.follow(self.merger)
             self.peers.cfg = replace(self.peers.cfg, merged_tolerance=(self.merger.cfg.cycle_m,
                                                                       self.merger.cfg.cycle_deg))
@@ -270,9 +270,10 @@ class RegistrationNode(SgregNode):
             self.tf_pub.publish(convert.tf_msg(self.merger.raw_poses(), self.merger.cfg.merged_frame,
                                                self.now_ns()))
 
-    def _peer_restarted(self, peer: str) -> None:
-        """Every link to or from the peer's old map goes from the merge and the views at once:
-        its new map lies in another frame (Peers.on_restart)."""
+    def _forget_peer(self, peer: str) -> None:
+        """Every link to or from the peer's map goes from the merge and the views at once: it
+        went silent (its last links would place it on /tf for good, no new result ageing them),
+        or it restarted and its new map lies in another frame (Peers.on_restart)."""
         self.merger.forget(peer)
         self.matches.pop(peer, None)
 
@@ -281,10 +282,7 @@ class RegistrationNode(SgregNode):
         for request in self.peers.on_tick(now):
             self.send_request(request)
         for peer in self.peers.expire(now):
-            # its last links would place it on /tf for good (no new result ages them), fixed
-            # peer or not: its next results bring them back
-            self.merger.forget(peer)
-            self.matches.pop(peer, None)
+            self._forget_peer(peer)     # fixed peer or not: its next results bring its links back
             self.drop_peer(peer)
 
     def guarded(self, what: str, work) -> None:
