@@ -494,9 +494,7 @@ class Peers:
             # A link just withdrawn says so now: the mergers stop placing the peer at once.
             self._count("deferred_to_dense")
             return None, request
-        est = self._judge(link, reg, msg.digest, timings, t0, now)
-        if withdrawn:   # the link's own pairs, re-checked on the maps of now, contradict it
-            est = replace(est, verified=False, reason="contradicted")
+        est = self._judge(link, reg, msg.digest, timings, t0, now, withdrawn=withdrawn)
         if self.cfg.prompt_request and link.prompt and request is None:
             request = self._send_wanted(link, now)    # the estimate made a coarse candidate
         return est, request
@@ -771,9 +769,11 @@ class Peers:
 
     def _judge(self, link: PeerLink, reg: Registration, peer_digest: str, timings: dict,
                t0: float, now: float, dense: GraphMessage | None = None,
-               beside: Hypothesis | None = None) -> Estimate:
+               beside: Hypothesis | None = None, withdrawn: bool = False) -> Estimate:
         """The estimate as published: the verdict of the pipeline, then the link's rules
-        (beside: an unpublished estimate of the same query from other data, _coarse_beside)."""
+        (beside: an unpublished estimate of the same query from other data, _coarse_beside;
+        withdrawn: the link's own pairs, re-checked on the maps of now, contradicted it, which
+        the result and the counters say whatever the pipeline's verdict)."""
         timings["total"] = 1e3 * (time.perf_counter() - t0)
         self._count(f"estimates_{reg.mode}")
         peer_msg = dense if dense is not None else link.coarse
@@ -799,6 +799,8 @@ class Peers:
         if reason == "ok" and (link.peer_id in self.disputed or self._off_merged_frame(link.peer_id, T)):
             # the other agents' links say otherwise: withheld, and the link kept to be re-judged
             reason = "disputed_by_cycles"
+        if withdrawn:
+            reason = "contradicted"
         if vouched:
             if reason == "ok":
                 self._count("vouched_by_peer")
