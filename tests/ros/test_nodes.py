@@ -171,8 +171,12 @@ def test_a_peer_that_restarts(two, tmp_path):
         procs.remove(p)
     procs += processes.start_agents(["b"], overrides=FAST, log_dir=tmp_path)
     w.transforms.pop(("a", "b"), None)
+    assert w.wait_ready(["b"]), f"restarted b did not start; dead: {alive(procs)}"
     assert w.spin_until(lambda: w.counter("/a/registration", "peer_restart") >= 1
-                        and verified_pairs_ok(w, frames, [("a", "b")]), 120, publish_maps=maps)
+                        and verified_pairs_ok(w, frames, [("a", "b")]), 120, publish_maps=maps), (
+        # what a heard, for a failure that DDS discovery of the restarted b may cause
+        w.diagnostics.get("/a/registration"),
+        [(r.agent_id, r.peer_id, r.mode, r.reason) for r in w.results[-6:]])
     assert not alive(procs)
 
 
