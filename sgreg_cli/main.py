@@ -74,7 +74,13 @@ def main(argv: list[str] | None = None) -> int:
                                   formatter_class=_HelpWithDefaults)
     module.add_arguments(sub)
     args = sub.parse_args(argv[1:])
-    return int(module.run(args) or 0)
+    try:
+        return int(module.run(args) or 0)
+    except KeyboardInterrupt:
+        # Ctrl-C is how a long command is stopped: one line, not a traceback (commands that
+        # own their output, e.g. make-bag, remove what they had half-written)
+        print(f"\nsgreg {argv[0]}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -4,7 +4,9 @@ agents into them, collect every published estimate, the merged frame the agents 
 sgreg_core.bench.replay_score and merge_score."""
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import sys
 import tempfile
 import threading
@@ -104,16 +106,47 @@ class FleetCheck:
             self.foreign["other_map_publishers"] = max(self.foreign["other_map_publishers"], extra)
 
 
+INSTANCE_MAP_TYPE = "sgreg_msgs/msg/InstanceMap"
+
+
 def agents_in_bag(bag: str | Path) -> list[str]:
+    return sorted(instance_map_counts(bag))
+
+
+def instance_map_counts(bag: str | Path) -> dict[str, int]:
+    """{agent: instance maps the bag holds on /<agent>/mapping/instances}; BagError when fewer
+    than two agents have some, or such a topic carries another message type (a bag of another
+    tool would otherwise replay nothing and report an empty success)."""
     reader = open_bag(bag)
     try:
-        names = sorted({c.topic.split("/")[1] for c in reader.connections
-                        if c.topic.endswith("/mapping/instances")})
+        conns = [c for c in reader.connections if c.topic.endswith("/mapping/instances")]
     finally:
         reader.close()
-    if len(names) < 2:
-        raise BagError(f"{bag} holds instance maps of {len(names)} agent(s); a replay needs two or more")
-    return names
+    wrong = sorted({f"{c.topic} ({c.msgtype})" for c in conns if c.msgtype != INSTANCE_MAP_TYPE})
+    if wrong:
+        raise BagError(f"{bag}: {', '.join(wrong)} must carry {INSTANCE_MAP_TYPE}")
+    counts: dict[str, int] = {}
+    for c in conns:
+        agent = c.topic.split("/")[1]
+        counts[agent] = counts.get(agent, 0) + c.msgcount
+    if len(counts) < 2:
+        raise BagError(f"{bag} holds instance maps of {len(counts)} agent(s); a replay needs two or more")
+    return counts
+
+
+def check_bag_against_ground_truth(bag: str | Path, gt: dict) -> None:
+    """BagError, before any node starts, when the ground truth cannot be this bag's: it lacks
+    an agent of the bag, or states another number of map snapshots for one (a ground_truth.json
+    copied from another bag would score right estimates as wrong verified transforms)."""
+    counts = instance_map_counts(bag)
+    missing = sorted(set(counts) - set(gt["T_scene_map"]))
+    if missing:
+        raise BagError(f"{bag}/ground_truth.json has no pose of agent(s) {', '.join(missing)} of the bag "
+                       f"(it names {', '.join(sorted(gt['T_scene_map']))}): is it another bag's?")
+    for agent, snapshots in (gt.get("objects") or {}).items():
+        if agent in counts and len(snapshots) != counts[agent]:
+            raise BagError(f"{bag}/ground_truth.json describes {len(snapshots)} map snapshots of agent "
+                           f"{agent}, the bag holds {counts[agent]}: is it another bag's?")
 
 
 class _Sampler:
@@ -168,7 +201,10 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     names = agents_in_bag(bag)
     _check_before_start(cfg, names)
     # a bag's ground truth (none: a recorded bag) is checked before any node starts
-    origin = (ground_truth_of(bag, required=False) or {}).get("t_origin", 0.0)
+    gt = ground_truth_of(bag, required=False)
+    if gt is not None:
+        check_bag_against_ground_truth(bag, gt)
+    origin = (gt or {}).get("t_origin", 0.0)
     overrides = dict(cfg.overrides)
     keys = None
     if cfg.authenticate and "keystore" not in overrides:
@@ -310,12 +346,20 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                 end_at = time.monotonic() + cfg.tail_s
                 bag_end = end_at - cfg.tail_s - t0
         duration = time.monotonic() - t0
+        if restart is not None and died is None:
+            # asked for but never done: say so, rather than a report that reads as a restart survived
+            events.append((duration, f"restart of {restart[0]} at {restart[1]:g} s not done: the "
+                                     f"replay ended at {duration:.0f} s"))
+            log(f"warning: {events[-1][1]}")
     finally:
-        sampler.sample()
-        processes.stop(procs)
-        player.destroy_node()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        # a second Ctrl-C waits for the cleanup: an interrupted one left the nodes running
+        # (they have sessions of their own)
+        with _sigint_ignored():
+            sampler.sample()
+            processes.stop(procs)
+            player.destroy_node()
+            node.destroy_node()
+            rclpy.try_shutdown()
     if died is not None:
         raise RuntimeError(died)
     if "error" in play_result:
@@ -334,6 +378,19 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                      # both nodes count a refused map: the registration node's count stands
                      counters={a: {**agent_counters.get(a, {}), **counters.get(a, {})} for a in names},
                      foreign=dict(fleet.foreign))
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored for the block (from the main thread; elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def ground_truth_of(bag: str | Path, required: bool = True) -> dict | None:

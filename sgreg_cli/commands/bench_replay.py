@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import re
 import sys
 import time
 from dataclasses import asdict, fields
@@ -78,9 +79,12 @@ def _ensure_bag(job, log) -> dict:
     wanted = json.loads(json.dumps(asdict(spec)))
     if job.path.exists():
         made = _made_with(job.path)
-        if made == wanted:
+        newer = _changed_since_made(job.path, spec) if made == wanted else None
+        if made == wanted and newer is None:
             return ground_truth_of(job.path)
-        if made is not None:
+        if newer is not None:
+            log(f"replacing {job.name}: {newer} changed after the bag was made")
+        elif made is not None:
             changed = sorted(k for k in made.keys() | wanted.keys() if made.get(k) != wanted.get(k))
             log(f"replacing {job.name}: made with other settings ({', '.join(changed)})")
         elif _interrupted(job.path):
@@ -110,8 +114,34 @@ def _ensure_bag(job, log) -> dict:
 
 def _interrupted(path: Path) -> bool:
     """Whether path holds what an interrupted make-bag leaves: nothing but rosbag2's own files
-    (make-bag writes the ground truth last), so that a run resumes where it stopped."""
-    return path.is_dir() and all(p.name == "metadata.yaml" or p.suffix == ".mcap" for p in path.iterdir())
+    as make-bag writes them, the MCAP named after the folder (make-bag writes the ground truth
+    last), so that a run resumes where it stopped. A recording of another name is no such."""
+    own = re.compile(rf"{re.escape(path.name)}(_\d+)?\.mcap")
+    return path.is_dir() and any(path.iterdir()) and all(
+        p.name == "metadata.yaml" or own.fullmatch(p.name) for p in path.iterdir())
+
+
+def _other_bags_summarised(out: Path, names: set[str]) -> str | None:
+    """What out/results.json summarises beyond `names` (a run of more bags), or None."""
+    try:
+        bags = json.loads((out / "results.json").read_text()).get("bags") or {}
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return None
+    extra = sorted(set(bags) - names)
+    return f"{len(bags)} bags, {extra[0]} among them" if extra else None
+
+
+def _changed_since_made(path: Path, spec) -> str | None:
+    """A file of the bag's scans modified after its ground truth was written (a scan regenerated
+    in place: the bag, and results cached from it, describe the old one), or None."""
+    made = (path / "ground_truth.json").stat().st_mtime_ns
+    for scan in (spec.scan, spec.scan_b):
+        folder = Path(scan) if scan else None
+        if folder is not None and folder.is_dir():
+            for f in folder.iterdir():
+                if f.is_file() and f.stat().st_mtime_ns > made:
+                    return str(f)
+    return None
 
 
 def _made_with(path: Path) -> dict | None:
@@ -206,11 +236,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"sgreg bench-replay: no bag of {suite.name} matches {args.only}", file=sys.stderr)
         return 2
     seeds = f"_seeds{'-'.join(map(str, args.seeds))}" if args.seeds else ""
-    out = Path(args.out or f"results/bench_replay_{suite.name}{seeds}" + ("_offline" if args.backend == "offline" else ""))
+    only = "_only-" + "-".join(re.sub(r"[^\w.-]", "_", t) for t in args.only) if args.only else ""
+    out = Path(args.out or f"results/bench_replay_{suite.name}{seeds}{only}"
+               + ("_offline" if args.backend == "offline" else ""))
     try:
         make_folder(out)
     except OSError as exc:
         print(f"sgreg bench-replay: --out: {exc}", file=sys.stderr)
+        return 2
+    other = _other_bags_summarised(out, {j.name for j in jobs}) if args.only and not args.make_only else None
+    if other:
+        print(f"sgreg bench-replay: --out {out} holds the summary of {other} (results.json): --only "
+              "would overwrite it with its subset; choose another --out", file=sys.stderr)
         return 2
     from ..processes import merge_config_of, read_params
 
@@ -242,7 +279,7 @@ def run(args: argparse.Namespace) -> int:
     for i, job in enumerate(jobs):
         try:
             truths[job.name] = _ensure_bag(job, lambda s: log(f"{i + 1}/{len(jobs)} {s}"))
-        except (BagSpecError, InstanceMapError, FileNotFoundError, ValueError) as exc:
+        except (BagSpecError, InstanceMapError, OSError, ValueError) as exc:
             print(f"sgreg bench-replay: bag {job.name}: {exc}", file=sys.stderr)
             return 2
     if args.make_only:

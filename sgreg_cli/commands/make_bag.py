@@ -65,7 +65,7 @@ class BagSpec:
             value = getattr(self, name)
             if value is None and name in ("range_b", "fov_b"):
                 continue
-            integral = name in ("seed", "waypoints")
+            integral = name in ("seed", "waypoints", "agents")
             if isinstance(value, bool) or not isinstance(value, numbers.Integral if integral else numbers.Real) \
                     or not lo <= value <= hi:     # NaN fails the comparison
                 raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be "
@@ -77,6 +77,12 @@ class BagSpec:
                                           and all(finite_number(v) for v in value)):
                 raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be two finite numbers "
                                    f"(scene x, y in m), got {value!r}")
+        # settings that would be ignored, and yet recorded in the bag's ground truth
+        if self.gt and not self.scan_b:
+            raise BagSpecError("gt (--gt) moves a second capture: give it with scan_b (--scan-b)")
+        if self.start_b is not None and self.opposite:
+            raise BagSpecError("start_b (--start-b) is where b starts its own path: it needs "
+                               "same-direction walks (--same-direction); opposite walks retrace a's")
 
 
 class BagSpecError(ValueError):
@@ -99,6 +105,7 @@ _LIMITS = {
     "voxel": (0.0, 1.0, " m"),                # 0: no downsampling
     "clearance": (0.0, 2.0, " m"),
     "waypoints": (1, 100, ""),
+    "agents": (2, 26, ""),                    # a to z
 }
 
 
@@ -149,22 +156,22 @@ def rescan_transform(scan: str, scan_b: str, gt_path: str):
 def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
     """Simulate the walks of `spec` and write the bag directory `out` (MCAP, zstd) with its
     ground_truth.json; returns that ground truth. Raises BagSpecError on bad input."""
-    import numpy as np
-    from rclpy.serialization import serialize_message
-    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    import shutil
 
-    from ..bag_types import typestore
-    from ..bags import offered_qos, qos_for, seal_chunks
-    from sgreg_ros.convert import instance_map_to_msg, transform_msg
+    import numpy as np
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
-    from sgreg_core.runtime.clock import seconds_to_ns
+    from sgreg_core.paths import make_folder
     from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
     from sgreg_core.simulation.walks import WalkConfig, level_transform, simulate
 
     out = Path(out)
     if out.exists():
         raise BagSpecError(f"{out} exists; choose a new directory")
+    try:    # before simulating: a folder the bag cannot go into is said at once
+        make_folder(out.parent)
+    except OSError as exc:
+        raise BagSpecError(str(exc)) from None
     if spec.scan_b and not spec.gt:
         raise BagSpecError("a second capture (scan_b) needs its pseudo ground truth (gt)")
     try:
@@ -200,6 +207,26 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                        progress=lambda f: log(f"  agents simulated: {f:.0%}"))
     except ValueError as exc:   # e.g. no free space to walk in
         raise BagSpecError(f"{spec.scan}: {exc}") from None
+    try:
+        info = _write_bag(out, spec, sim, T_level, T_b_capture, log)
+    except BaseException:
+        # Ctrl-C or a full disk half-way: no partial bag that a rerun would refuse as existing
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    return info
+
+
+def _write_bag(out: Path, spec: BagSpec, sim, T_level, T_b_capture, log) -> dict:
+    import numpy as np
+    from rclpy.serialization import serialize_message
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from ..bag_types import typestore
+    from ..bags import offered_qos, qos_for, seal_chunks
+    from sgreg_ros.convert import instance_map_to_msg, transform_msg
+
+    from sgreg_core.runtime.clock import seconds_to_ns
+
     T = sim.T_a_b
     store = typestore()
     events = [(t, agent.name, m) for agent in sim.agents for t, m in agent.snapshots]

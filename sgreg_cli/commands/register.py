@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -73,18 +74,17 @@ def read_pairs(path: str) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     import time
-    from pathlib import Path
 
     import torch
 
-    from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.net.model import load_model
     from sgreg_core.pipeline import warm_up
     from sgreg_core.plots import figure_path
 
     one_pair = bool(args.src_dir and args.ref_dir)
+    if args.pairs and args.src_dir:
+        return _fail("give SRC_DIR REF_DIR or --pairs FILE, not both")
     if one_pair == bool(args.pairs) or (args.src_dir and not one_pair):
         return _fail("give SRC_DIR REF_DIR, or --pairs FILE")
     if args.pairs and args.png:
@@ -114,6 +114,46 @@ def run(args: argparse.Namespace) -> int:
     startup_ms = 1e3 * (time.perf_counter() - t0)
 
     results, codes = [], []
+    try:
+        draw = _register_all(pairs, args, model, cfg, startup_ms, results, codes)
+    except KeyboardInterrupt:
+        # Ctrl-C in a long --pairs run keeps what was registered (main says "interrupted")
+        if args.pairs and args.json_out and results:
+            _write_json(Path(args.json_out), results)
+            print(f"\n{len(results)} of {len(pairs)} pairs registered before Ctrl-C: {args.json_out}",
+                  file=sys.stderr)
+        raise
+    if args.pairs:
+        ok = sum(c == 0 for c in codes)
+        print(f"{ok} of {len(pairs)} pairs registered ({codes.count(2)} with bad input or failed); "
+              f"model loaded once in {startup_ms:.0f} ms")
+    if args.json_out:
+        out = Path(args.json_out)
+        try:
+            _write_json(out, results if args.pairs else results[0])
+        except OSError as exc:
+            return _fail(f"cannot write {out}: {exc.strerror or exc}")
+    if args.png and codes[0] != 2:
+        try:
+            draw(args.png)
+        except (OSError, ValueError, RuntimeError) as exc:
+            return _fail(f"cannot draw {args.png}: {' '.join(str(exc).split())}")
+    return max(codes)
+
+
+def _write_json(out: Path, doc) -> None:
+    import json
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=1) + "\n")
+
+
+def _register_all(pairs, args, model, cfg, startup_ms, results: list, codes: list):
+    """Register every pair, appending to results and codes as each is done; returns the
+    drawing of the last pair registered (--png takes the one pair's)."""
+    from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
+
+    draw = None
     for src_dir, ref_dir in pairs:
         try:
             maps = read_instance_map(src_dir), read_instance_map(ref_dir)
@@ -137,30 +177,13 @@ def run(args: argparse.Namespace) -> int:
             continue
         results.append(result)
         codes.append(0 if result["success"] else 1)
-    if args.pairs:
-        ok = sum(c == 0 for c in codes)
-        print(f"{ok} of {len(pairs)} pairs registered ({codes.count(2)} with bad input or failed); "
-              f"model loaded once in {startup_ms:.0f} ms")
-    if args.json_out:
-        out = Path(args.json_out)
-        try:
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps(results if args.pairs else results[0], indent=1) + "\n")
-        except OSError as exc:
-            return _fail(f"cannot write {out}: {exc.strerror or exc}")
-    if args.png and codes[0] != 2:
-        try:
-            draw(args.png)
-        except (OSError, ValueError, RuntimeError) as exc:
-            return _fail(f"cannot draw {args.png}: {' '.join(str(exc).split())}")
-    return max(codes)
+    return draw
 
 
 def _where(exc: BaseException) -> str:
     """file:line where exc was raised, as a bug report needs it: the innermost frame in sgreg's
     own packages, then the frame it came from where that lies elsewhere (a library)."""
     import traceback
-    from pathlib import Path
 
     frames = traceback.extract_tb(exc.__traceback__)
     ours = [f for f in frames if {"sgreg_core", "sgreg_cli", "sgreg_ros"} & set(Path(f.filename).parts)]

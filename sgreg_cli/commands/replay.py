@@ -56,15 +56,20 @@ def run(args) -> int:
                                                 replay_report)
     from sgreg_core.bench.replay_score import ground_truth, score_replay
     from sgreg_core.metrics import rre, rte
-    from sgreg_core.paths import make_folder
+    from sgreg_core.paths import make_folder, output_file, weights_files
     from sgreg_core.plots import figure_path
 
     out_json = Path(args.json) if args.json else None
     try:
+        # what would fail only once the bag has been replayed, or leave the nodes unready
         if out_json is not None:
-            make_folder(out_json.parent)
+            output_file(out_json)
         if args.png:
             figure_path(args.png)
+        if args.weights:
+            weights_files(args.weights)
+        if args.log_dir:
+            make_folder(args.log_dir)
         gt = ground_truth_of(args.bag)
         # the merge the agents run, read before the replay: a value they refuse stops it here
         merge_cfg = merge_config_of(read_params(args.params_file), min(gt["T_scene_map"]))
@@ -90,8 +95,12 @@ def run(args) -> int:
                        log_dir=log_dir)
     if args.tail is not None:
         cfg.tail_s = args.tail
+    from rclpy.executors import ExternalShutdownException
     try:
         run_ = run_replay(args.bag, cfg, log=lambda s: print(f"[replay] {s}", flush=True))
+    except ExternalShutdownException:     # SIGTERM: rclpy's handler shut the context down
+        print("sgreg replay: stopped (SIGTERM); the nodes were stopped, nothing was scored", file=sys.stderr)
+        return 143
     except (BagError, RuntimeError, ValueError) as exc:
         where = f" (node logs: {cfg.log_dir})" if cfg.log_dir.is_dir() else ""
         print(f"sgreg replay: {exc}{where}", file=sys.stderr)
@@ -102,7 +111,8 @@ def run(args) -> int:
     merge["published_on_tf"] = bool(tf_poses)
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s,
                                                    "params_file": cfg.params_file,
-                                                   "overrides": cfg.overrides}, settle_s=cfg.settle_s,
+                                                   "overrides": cfg.overrides,
+                                                   "restart": args.restart}, settle_s=cfg.settle_s,
                            merge=merge)
     kb_per_frame = report["kb_per_query_frame"]
     if out_json is not None:

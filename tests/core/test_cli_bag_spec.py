@@ -14,6 +14,7 @@ from sgreg_cli.main import main
     {"mapping_period": -1.0}, {"mapping_period": 0.0}, {"mapping_period": float("nan")},
     {"range": 0.0}, {"range": -5.0}, {"fov": 0.0}, {"range_b": 0.0}, {"fov_b": 400.0},
     {"voxel": -0.1}, {"waypoints": 2.5}, {"seed": -1}, {"speed": "fast"}, {"speed": True},
+    {"agents": 0}, {"agents": 27}, {"agents": 2.5},
 ])
 def test_bag_settings_out_of_range_are_refused(setting):
     name = next(iter(setting))
@@ -25,6 +26,37 @@ def test_bag_settings_out_of_range_are_refused(setting):
 def test_start_points_that_are_not_two_finite_numbers_are_refused(start):
     with pytest.raises(BagSpecError, match=r"^start_b \(--start-b\) must be two finite numbers"):
         BagSpec(scan="scan", start_b=start)
+
+
+def test_settings_that_would_be_ignored_are_refused():
+    """Recorded in the bag's ground truth, yet without effect on its walks."""
+    with pytest.raises(BagSpecError, match=r"^gt \(--gt\) moves a second capture"):
+        BagSpec(scan="scan", gt="rescan_gt.json")
+    with pytest.raises(BagSpecError, match=r"^start_b \(--start-b\) is where b starts its own path"):
+        BagSpec(scan="scan", start_b=(1.0, 1.0))
+    BagSpec(scan="scan", start_b=(1.0, 1.0), opposite=False)
+
+
+def test_make_bag_leaves_no_partial_bag_and_checks_its_folder_first(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while writing removes the half-written bag (a rerun would refuse it as existing);
+    an output folder that cannot be made is said before simulating."""
+    from sgreg_cli import bags
+    from sgreg_core.maps.instance_map import write_instance_map
+    from sgreg_core.simulation.synth import SynthConfig, generate_scene
+
+    write_instance_map(generate_scene(0, SynthConfig(density=100.0)), tmp_path / "scene")
+    (tmp_path / "a_file").write_text("x")
+    assert main(["make-bag", str(tmp_path / "scene"), "--out", str(tmp_path / "a_file" / "bag")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sgreg make-bag: cannot create folder") and "simulating" not in err, err
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bags, "seal_chunks", interrupted)
+    assert main(["make-bag", str(tmp_path / "scene"), "--out", str(tmp_path / "bag")]) == 130
+    assert capsys.readouterr().err.endswith("sgreg make-bag: interrupted\n")
+    assert not (tmp_path / "bag").exists()
 
 
 def test_a_start_point_outside_the_scene_is_refused_before_simulating(tmp_path, capsys):

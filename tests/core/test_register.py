@@ -153,6 +153,30 @@ def test_many_pairs_load_the_model_once(data, tmp_path, capsys):
     assert main(["register", "--pairs", str(listing)]) == 2
     assert main(["register", str(root / "src")]) == 2
     assert "give SRC_DIR REF_DIR, or --pairs FILE" in capsys.readouterr().err
+    assert main(["register", str(root / "src"), str(root / "ref"), "--pairs", str(listing)]) == 2
+    assert "give SRC_DIR REF_DIR or --pairs FILE, not both" in capsys.readouterr().err
+
+
+def test_ctrl_c_in_a_run_of_pairs_keeps_the_pairs_registered(data, tmp_path, capsys, monkeypatch):
+    root, _ = data
+    register_one = register_cmd._register_one
+    done = []
+
+    def interrupted_at_the_second(*args, **kwargs):
+        if done:
+            raise KeyboardInterrupt
+        done.append(1)
+        return register_one(*args, **kwargs)
+
+    monkeypatch.setattr(register_cmd, "_register_one", interrupted_at_the_second)
+    listing = tmp_path / "pairs.txt"
+    listing.write_text(f"{root / 'src'} {root / 'ref'}\n{root / 'src'} {root / 'other'}\n")
+    out = tmp_path / "all.json"
+    assert main(["register", "--pairs", str(listing), "--json", str(out)]) == 130
+    results = json.loads(out.read_text())
+    assert len(results) == 1 and results[0]["success"]
+    err = capsys.readouterr().err
+    assert f"1 of 2 pairs registered before Ctrl-C: {out}" in err and err.endswith("sgreg register: interrupted\n")
 
 
 def test_one_broken_pair_loses_no_other_result(data, tmp_path, capsys, monkeypatch):

@@ -1,6 +1,7 @@
 """sgreg bench-replay: a suite file of two tiny generated bags, made, replayed through real nodes,
 summarised (JSON, table, PNG) and cached."""
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -113,6 +114,35 @@ def test_only_a_bag_the_suite_made_is_replaced(tmp_path):
     res = make_only(suite, tmp_path)
     assert res.returncode == 0 and f"replacing {bag.name}: its making was interrupted" in res.stdout
     assert (bag / "ground_truth.json").exists()
+    # a recording (sgreg record names its MCAP after itself) put in a bag's place stays
+    shutil.rmtree(bag)
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (bag / "rec1.mcap").write_bytes(b"\x89MCAP0\r\n")
+    res = make_only(suite, tmp_path)
+    assert res.returncode == 2 and f"{bag} is in the way" in res.stderr and (bag / "rec1.mcap").exists()
+    shutil.rmtree(bag)
+    assert make_only(suite, tmp_path).returncode == 0
+    # a scan regenerated in place after the bag was made: the bag describes the old one
+    made = (bag / "ground_truth.json").stat().st_mtime_ns
+    points = next(p for p in (tmp_path / "bags" / "scenes").glob("*/points.npy"))
+    os.utime(points, ns=(made + 10**9, made + 10**9))
+    res = make_only(suite, tmp_path)
+    assert res.returncode == 0 and f"replacing {bag.name}: " in res.stdout, res.stdout
+    assert f"{points.name} changed after the bag was made" in res.stdout
+    assert (bag / "ground_truth.json").stat().st_mtime_ns > made
+
+
+def test_a_subset_run_does_not_overwrite_the_summary_of_a_whole_run(tmp_path):
+    suite = tmp_path / "tiny.yaml"
+    suite.write_text(TINY)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "results.json").write_text(json.dumps({"bags": {"synth_other_s0": {}, "synth_more_s1": {}}}))
+    res = subprocess.run(SGREG + ["bench-replay", str(suite), "--only", "synth", "--out", str(out),
+                                  "--backend", "offline"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "holds the summary of 2 bags" in res.stderr, res.stderr
+    assert json.loads((out / "results.json").read_text())["bags"].keys() == {"synth_other_s0", "synth_more_s1"}
 
 
 def test_a_changed_synth_setting_makes_a_new_scene_and_bag(tmp_path):

@@ -96,8 +96,12 @@ def test_a_corrupted_message_is_reported_and_the_replay_goes_on(tmp_path):
                 raw = bytes(raw)[:100]
             w.write(conns[c.id], t, raw)
     (bad / "ground_truth.json").write_text((src / "ground_truth.json").read_text())
-    report, _ = replay(bad, tmp_path, "--tail", "5")
+    # a restart asked for past the end is said, not a report that reads as a restart survived
+    report, stdout = replay(bad, tmp_path, "--tail", "5", "--restart", "a@9999")
     assert report["config"]["tail_s"] == 5.0 and report["after_bag"]["bytes_per_s"] == {}
+    assert report["config"]["restart"] == "a@9999" and "warning: restart of a at 9999 s not done" in stdout
+    assert [e["what"] for e in report["events"]] == ["restart of a at 9999 s not done: the replay ended at "
+                                                    f"{report['duration_s']:.0f} s"], report["events"]
     assert len(report["corrupted_messages"]) == 1
     assert report["corrupted_messages"][0]["topic"] == "/a/mapping/instances"
     assert report["wrong_verified"] == 0 and report["success_rate"] > 0
@@ -215,6 +219,54 @@ def test_a_ground_truth_that_cannot_be_scored_is_refused_before_any_node_starts(
         assert main(argv) == 2, extra
         err = capsys.readouterr().err
         assert err.startswith("sgreg replay: ") and words in err and err.count("\n") == 1, err
+
+
+def test_a_bag_and_inputs_that_do_not_fit_are_refused_before_any_node_starts(tmp_path, capsys,
+                                                                           monkeypatch):
+    """What used to fail only after the whole replay (an --json that is a folder, a ground truth
+    without one of the bag's agents), leave the nodes unready for 90 s (missing weights), or be
+    scored as if right (another bag's ground truth, instance-map topics of another type)."""
+    from sgreg_cli import processes
+    from sgreg_cli.main import main
+
+    def no_node(*args, **kwargs):
+        raise AssertionError("a node was started")
+
+    monkeypatch.setattr(processes, "start_agents", no_node)
+    src = BAGS / "apartment_opposite"
+
+    def refused(argv, words):
+        assert main(["replay", *map(str, argv)]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("sgreg replay: ") and words in err and err.count("\n") == 1, err
+
+    (tmp_path / "out.json").mkdir()
+    refused([src, "--json", tmp_path / "out.json"], "is a folder; give a file name")
+    refused([src, "--weights", tmp_path / "none.safetensors"], "model weights need")
+    (tmp_path / "a_file").write_text("x")
+    refused([src, "--log-dir", tmp_path / "a_file"], "cannot create folder")
+    # a ground truth that lacks an agent of the bag, and one copied from another bag
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    gt = json.loads((src / "ground_truth.json").read_text())
+    gt["objects"]["a"] = gt["objects"]["a"][:-1]
+    (bag / "ground_truth.json").write_text(json.dumps(gt))
+    refused([bag], "describes")
+    gt = json.loads((src / "ground_truth.json").read_text())
+    gt["T_scene_map"] = {"a": gt["T_scene_map"]["a"], "c": gt["T_scene_map"]["b"]}
+    gt["objects"] = {"a": gt["objects"]["a"], "c": gt["objects"]["b"]}
+    (bag / "ground_truth.json").write_text(json.dumps(gt))
+    refused([bag], "has no pose of agent(s) b of the bag")
+    # instance-map topics that carry another type (a bag of another tool)
+    other = tmp_path / "other"
+    store = typestore()
+    with Writer(other, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        for name in "ab":
+            conn = w.add_connection(f"/{name}/mapping/instances", "std_msgs/msg/String", typestore=store)
+            w.write(conn, 1, store.serialize_cdr(store.types["std_msgs/msg/String"](data="x"),
+                                                 "std_msgs/msg/String"))
+    shutil.copy(src / "ground_truth.json", other)
+    refused([other], "must carry sgreg_msgs/msg/InstanceMap")
 
 
 def test_view_places_maps_by_the_recorded_merged_frame_and_says_when_frame_is_not_on_tf(
