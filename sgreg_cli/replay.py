@@ -292,7 +292,7 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
             dead = [p for p in procs if p.proc.poll() is not None]
             if dead:
                 raise RuntimeError(f"node {dead[0].agent}/{dead[0].executable} exited with "
-                                   f"{dead[0].proc.returncode} during start-up"
+                                   f"{dead[0].proc.returncode} during start-up{_last_words(dead[0])}"
                                    + (f" (log: {dead[0].log_path})" if dead[0].log_path else ""))
             if all(node.count_subscribers(f"/{n}/mapping/instances") >= 2 for n in names):
                 break
@@ -378,6 +378,15 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                      # both nodes count a refused map: the registration node's count stands
                      counters={a: {**agent_counters.get(a, {}), **counters.get(a, {})} for a in names},
                      foreign=dict(fleet.foreign))
+
+
+def _last_words(p) -> str:
+    """': ' and the last line a node wrote to its log (a refusal says why there), or ''."""
+    try:
+        lines = [line.strip() for line in p.log_path.read_text(errors="replace").splitlines() if line.strip()]
+    except (AttributeError, OSError):
+        return ""
+    return f": {lines[-1][:300]}" if lines else ""
 
 
 @contextlib.contextmanager

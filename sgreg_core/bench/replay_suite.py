@@ -205,7 +205,7 @@ def load_suite(path: str | Path, seeds: list[int] | None = None, bag_spec: type 
     try:
         doc = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
-        raise SuiteError(f"cannot read suite {path}: {exc}") from None
+        raise SuiteError(f"cannot read suite {path}: {' '.join(str(exc).split())}") from None
     if not isinstance(doc, dict):
         raise SuiteError(f"suite {path} is not a mapping")
     where = f"suite {path}"

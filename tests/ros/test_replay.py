@@ -288,3 +288,16 @@ def test_view_places_maps_by_the_recorded_merged_frame_and_says_when_frame_is_no
     out = capsys.readouterr()
     assert out.err == "sgreg view: the bag's /tf has no frame wrold (its frames: sgreg_merged)\n"
     assert "placed by the ground truth (a's map frame)" in out.out and png.stat().st_size > 10_000
+
+
+def test_a_node_that_refuses_its_parameters_is_named_with_its_reason(tmp_path):
+    """A value only the node can judge (its descriptor's range): the replay says which node and
+    why, in one line, rather than only its exit code."""
+    params = tmp_path / "params.yaml"
+    text = (Path(__file__).resolve().parents[2] / "config" / "sgreg.yaml").read_text()
+    params.write_text(text.replace("    max_peers: 16 ", "    max_peers: 0 "))
+    res = subprocess.run(SGREG + ["replay", str(BAGS / "apartment_opposite"), "--tail", "0",
+                                  "--params-file", str(params), "--log-dir", str(tmp_path / "logs")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    assert "during start-up: " in res.stderr and "parameter 'max_peers'" in res.stderr, res.stderr[-2000:]
