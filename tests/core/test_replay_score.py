@@ -105,6 +105,10 @@ def test_the_merge_score_ages_links_by_their_maps_stamps_as_the_nodes_do():
                        reason="ok" if t == 1 else "too_few_inliers") for t in range(1, 11)]
     merged, score = merge_report(records, FRAMES, cfg=MergeConfig(max_link_age_s=3.0))
     assert merged.attached == ["a", "b"] and score["links_kept"] == 1
+    assert score["max_pose_error_m"] < 0.5
+    # nothing verified: only the anchor is placed, and no pose error was measured (not 0 m)
+    _, score = merge_report([replace(r, verified=False, link="none") for r in records], FRAMES)
+    assert score["attached"] == 1 and score["max_pose_error_m"] is None, score
 
 
 def test_merge_timeline_counts_the_seconds_a_wrong_link_held_the_merged_frame():
