@@ -203,6 +203,13 @@ def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     from sgreg_core.config import apply_overrides, from_dict, to_dict
     from sgreg_core.pipeline import PipelineConfig
 
+    unused = "pose." if args.coarse else "coarse_pose."
+    ignored = [o for o in args.overrides if o.startswith(unused)]
+    if ignored:    # the other mode's pose settings: taken silently, they would change nothing
+        raise ValueError(f"{', '.join(ignored)}: {unused}* applies to "
+                         f"{'dense' if args.coarse else 'coarse (--coarse)'} registration only; "
+                         f"{'--coarse' if args.coarse else 'dense'} takes "
+                         f"{'coarse_pose' if args.coarse else 'pose'}.*")
     data = to_dict(PipelineConfig(mode="coarse" if args.coarse else "dense",
                                   icp="never" if args.no_icp else "always"))
     return from_dict(PipelineConfig, apply_overrides(data, args.overrides))

@@ -110,10 +110,15 @@ def test_set_overrides_the_pipeline_config(data, capsys):
                 # wrong types and settings that divided by zero or were taken as they came
                 "min_nodes=abc", "min_nodes=0", "graph.voxel_size=abc", "graph.voxel_size=0",
                 "graph.voxel_size=.nan", "graph.voxel_size=-0.05", "graph.box_angles=0",
-                "icp=true", "pose.clique_deltas=[0.2, x]"):
+                "icp=true", "pose.clique_deltas=[0.2, x]",
+                # the other mode's pose settings would change nothing
+                "coarse_pose.noise_bound=0.5"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--set", bad])
         err = capsys.readouterr().err.strip()
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad
+    code = main(["register", str(root / "src"), str(root / "ref"), "--coarse", "--set", "pose.footprint_rim=1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "pose.* applies to dense registration only; --coarse takes coarse_pose.*" in err, err
     for threads in ("0", "-3"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--threads", threads])
         err = capsys.readouterr().err.strip()
