@@ -26,6 +26,11 @@ def run(args) -> int:
     from sgreg_core.runtime.auth import KeystoreError, add_public_key, init_keystore, list_keys
 
     try:
+        extra = [v for v in (args.agent, args.public_hex) if v] if args.action != "add" else []
+        if extra or (args.agents and args.action != "init"):
+            raise KeystoreError(f"{args.action} takes only DIR"
+                                + (" and --agents" if args.action == "init" else "")
+                                + f"; got also {' '.join(extra) or '--agents'}")
         if args.action == "init":
             if not args.agents:
                 raise KeystoreError("init needs --agents")

@@ -75,3 +75,17 @@ def test_a_private_key_other_users_can_read_is_refused_at_load(tmp_path):
     os.chmod(tmp_path / "private" / "b.key", 0o644)
     with pytest.raises(KeystoreError, match=r"private/b.key can be read by other users \(mode 644\); chmod 600"):
         Keystore(tmp_path)
+
+
+def test_the_keys_command_refuses_arguments_it_would_ignore(tmp_path, capsys):
+    from sgreg_cli.main import main
+
+    assert main(["keys", "init", str(tmp_path / "k"), "--agents", "a", "b"]) == 0
+    capsys.readouterr()
+    for argv, words in ((["list", str(tmp_path / "k"), "extra"], "list takes only DIR; got also extra"),
+                        (["list", str(tmp_path / "k"), "--agents", "c"], "list takes only DIR; got also --agents"),
+                        (["init", str(tmp_path / "k2"), "c", "--agents", "c"], "init takes only DIR and --agents")):
+        assert main(["keys", *argv]) == 2, argv
+        assert words in capsys.readouterr().err
+    assert not (tmp_path / "k2").exists()
+    assert main(["keys", "list", str(tmp_path / "k")]) == 0
