@@ -193,8 +193,9 @@ def test_bench_startup_times_no_process_that_failed():
 
 
 def test_bench_scale_counts_an_estimate_as_ok_only_when_ground_truth_agrees(monkeypatch):
-    """dense_requested_ok, as coarse_ok and dense_ok: verified and right, not what the
-    estimate says of itself (an estimate claiming success at a wrong pose is not ok)."""
+    """dense_requested_ok and dense_ok: verified and right, not what the estimate says of
+    itself (an estimate claiming success at a wrong pose is not ok). coarse_ok is judged by the
+    same line of run_scale; this case's coarse estimate fails verification, so it shows nothing."""
     from sgreg_core.bench import scale_bench
     from sgreg_core.net.model import load_model
 
