@@ -73,8 +73,14 @@ def test_a_start_point_outside_the_scene_is_refused_before_simulating(tmp_path, 
 
 
 def test_default_and_shipped_bag_settings_are_accepted():
+    """The settings every shipped bag was made with (its ground truth's config), not a copy."""
+    from pathlib import Path
+
     BagSpec(scan="scan")
-    BagSpec(scan="scan", speed=0.2, mapping_period=3.0, clearance=0.15, voxel=0.15, range_b=3.0, fov_b=60.0)
+    shipped = sorted((Path(__file__).resolve().parents[2] / "bags").glob("*/ground_truth.json"))
+    assert len(shipped) >= 4
+    for gt in shipped:
+        BagSpec(**json.loads(gt.read_text())["config"])
 
 
 def test_make_bag_refuses_a_bad_flag_in_one_line(tmp_path, capsys):

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 from rosgraph_msgs.msg import Clock
@@ -19,7 +20,7 @@ from sgreg_msgs.msg import CoarseGraph, DenseRequest, RegistrationResult
 from sgreg_cli.bags import play_bag
 from sgreg_core.types import InstanceMap
 from sgreg_ros import qos
-from sgreg_ros.convert import instance_map_to_msg
+from sgreg_ros.convert import instance_map_to_msg, stamp_to_ns
 
 from .harness import FAST, Watcher, agent_maps, alive, processes
 
@@ -201,9 +202,13 @@ def test_sim_time_from_play_clock_stamps_outputs_in_bag_time(ros, tmp_path):
     bag = BAGS / "apartment_opposite"
     procs = processes.start_agents(["a", "b"], overrides={"use_sim_time": True}, log_dir=tmp_path)
     w = Watcher([])
-    coarse, results = [], []
+    coarse, results, diagnostics = [], [], []
     w.node.create_subscription(CoarseGraph, "/a/sgreg/coarse", coarse.append, qos.COARSE_SUB)
     w.node.create_subscription(RegistrationResult, "/b/sgreg/registration", results.append, qos.RESULTS)
+    # stamped by each node's own clock (coarse graphs and results carry their maps' stamps, the
+    # bag's whatever clock the node runs on)
+    w.node.create_subscription(DiagnosticArray, "/diagnostics",
+                               lambda m: diagnostics.append(stamp_to_ns(m.header.stamp) / 1e9), qos.DIAGNOSTICS)
     player = rclpy.create_node("test_player")
     try:
         assert w.spin_until(lambda: all(w.node.count_subscribers(f"/{n}/mapping/instances") >= 2
@@ -222,6 +227,9 @@ def test_sim_time_from_play_clock_stamps_outputs_in_bag_time(ros, tmp_path):
     assert all(start <= m.header.stamp.sec <= end for m in coarse), [m.header.stamp.sec for m in coarse[:5]]
     assert all(start <= r.header.stamp.sec <= end for r in results)
     assert len(coarse) >= 5   # the coarse timer ran on the bag's clock
+    in_bag_time = [t for t in diagnostics if start <= t <= end + 1.0]
+    assert len(in_bag_time) >= 4, diagnostics[-8:]
+    assert not [t for t in diagnostics if t > end + 1.0], diagnostics[-8:]    # not the wall clock
 
 
 class _TestClock:
