@@ -53,6 +53,18 @@ class MatchConfig:
     point_threshold: float = 0.1
     point_topk: int = 1
 
+    def __post_init__(self):
+        # a threshold of 0 keeps every mutual top-k entry (log 0: no bound)
+        if not (0.0 <= self.node_threshold < 1.0 and 0.0 <= self.point_threshold < 1.0):
+            raise ValueError(f"match: node_threshold and point_threshold must lie in [0, 1), got "
+                             f"{self.node_threshold} and {self.point_threshold}")
+        if not (self.d_match >= 1 and self.node_topk >= 1 and self.point_topk >= 1 and self.sinkhorn_iters >= 1):
+            raise ValueError("match: d_match, node_topk, point_topk and sinkhorn_iters must be >= 1")
+
+
+def _log_bound(threshold: float) -> float:
+    return math.log(threshold) if threshold > 0 else -math.inf
+
 
 def mutual_topk(scores: torch.Tensor, k: int) -> torch.Tensor:
     """True where an entry is among the k largest of its row and of its column."""
@@ -137,7 +149,7 @@ class NodeMatcher(nn.Module):
             empty = torch.zeros(0, dtype=torch.long)
             return empty, empty, torch.zeros(0)
         log_A = log_dual_softmax(desc_src, desc_ref)
-        keep = mutual_topk(log_A, self.cfg.node_topk) & (log_A > math.log(self.cfg.node_threshold))
+        keep = mutual_topk(log_A, self.cfg.node_topk) & (log_A > _log_bound(self.cfg.node_threshold))
         i_src, i_ref = keep.nonzero(as_tuple=True)
         return i_src, i_ref, log_A[i_src, i_ref].exp()
 
@@ -161,7 +173,7 @@ class PointMatcher(nn.Module):
             empty = torch.zeros(0, dtype=torch.long)
             return empty, empty, empty, torch.zeros(0)
         log_p = self.log_transport(z_src, valid_src, z_ref, valid_ref)[:, :-1, :-1]
-        keep = mutual_topk(log_p, self.cfg.point_topk) & (log_p > math.log(self.cfg.point_threshold))
+        keep = mutual_topk(log_p, self.cfg.point_topk) & (log_p > _log_bound(self.cfg.point_threshold))
         keep &= valid_src.unsqueeze(2) & valid_ref.unsqueeze(1)
         pair, i_src, i_ref = keep.nonzero(as_tuple=True)
         return pair, i_src, i_ref, log_p[pair, i_src, i_ref].exp()

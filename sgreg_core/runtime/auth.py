@@ -52,6 +52,7 @@ class Keystore:
         self.owners: dict[str, str] = {}           # key id -> agent
         self._verify: dict[str, VerifyKey] = {}
         self._sign: dict[str, SigningKey] = {}
+        path = self.root
         try:
             for path in sorted((self.root / "public").glob("*.pub")):
                 vk = VerifyKey(bytes.fromhex(path.read_text().strip()))
@@ -67,7 +68,9 @@ class Keystore:
                                         f"users (mode {mode:o}); chmod 600 {path}")
                 self._sign[path.stem] = SigningKey(bytes.fromhex(path.read_text().strip()))
         except (OSError, ValueError) as exc:
-            raise KeystoreError(f"keystore {self.root}: {exc}") from None
+            # the file it failed on, so that the fix is one line
+            where = "" if path == self.root else f"{path.relative_to(self.root)}: "
+            raise KeystoreError(f"keystore {self.root}: {where}{exc}") from None
 
     def signer(self, agent: str) -> tuple[str, object]:
         """(key id, signing key) of an agent run here; KeystoreError when its key is missing."""

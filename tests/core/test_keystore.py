@@ -89,3 +89,10 @@ def test_the_keys_command_refuses_arguments_it_would_ignore(tmp_path, capsys):
         assert words in capsys.readouterr().err
     assert not (tmp_path / "k2").exists()
     assert main(["keys", "list", str(tmp_path / "k")]) == 0
+
+
+def test_a_key_file_that_is_not_hex_is_named(tmp_path):
+    init_keystore(tmp_path / "k", ["a", "b"])
+    (tmp_path / "k" / "public" / "b.pub").write_text("not hex")
+    with pytest.raises(KeystoreError, match=r"public/b\.pub: non-hexadecimal"):
+        Keystore(tmp_path / "k")

@@ -221,3 +221,15 @@ def test_damaged_weights_are_one_clear_error(tmp_path):
     cut.with_suffix(".json").write_text("{not json")
     with pytest.raises(ValueError, match=r"sgreg.safetensors \(with sgreg.json\) cannot be loaded"):
         load_model(cut)
+
+
+def test_match_thresholds_of_zero_keep_every_mutual_top_k_and_bad_ones_are_refused(text):
+    """0 is no bound (it raised a math domain error); a threshold of 1 or more, or a top-k of 0,
+    would match nothing: refused when the config is made (e.g. from a weights' .json)."""
+    model = _model(text, match={"node_threshold": 0.0, "point_threshold": 0.0})
+    feats = model.encode(toy_graph(np.random.default_rng(2), n=12))
+    dense = model.match_dense(feats, feats)
+    assert len(dense.nodes) >= 12 and len(dense.points) > 0
+    for bad in ({"node_threshold": -0.1}, {"point_threshold": 1.0}, {"node_topk": 0}, {"d_match": 0}):
+        with pytest.raises(ValueError, match="match: "):
+            ModelConfig.from_dict({"match": bad})
