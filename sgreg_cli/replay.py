@@ -399,7 +399,8 @@ def _sigint_ignored():
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, before)
+        # None: a handler installed outside Python (rclpy's, gone with its shutdown)
+        signal.signal(signal.SIGINT, signal.default_int_handler if before is None else before)
 
 
 def ground_truth_of(bag: str | Path, required: bool = True) -> dict | None:

@@ -301,3 +301,23 @@ def test_a_node_that_refuses_its_parameters_is_named_with_its_reason(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-2000:]
     assert "during start-up: " in res.stderr and "parameter 'max_peers'" in res.stderr, res.stderr[-2000:]
+
+
+def test_the_replay_cleanup_is_not_interrupted_by_a_second_ctrl_c():
+    """Ignored while the nodes are stopped (an interrupted cleanup left them running), and the
+    handler before it restored after."""
+    import signal
+
+    from sgreg_cli.replay import _sigint_ignored
+
+    def mine(*args):
+        pass
+
+    before = signal.signal(signal.SIGINT, mine)
+    try:
+        with _sigint_ignored():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGINT)     # would raise KeyboardInterrupt, or call mine
+        assert signal.getsignal(signal.SIGINT) is mine
+    finally:
+        signal.signal(signal.SIGINT, before)
