@@ -109,10 +109,6 @@ class FleetCheck:
 INSTANCE_MAP_TYPE = "sgreg_msgs/msg/InstanceMap"
 
 
-def agents_in_bag(bag: str | Path) -> list[str]:
-    return sorted(instance_map_counts(bag))
-
-
 def instance_map_counts(bag: str | Path) -> dict[str, int]:
     """{agent: instance maps the bag holds on /<agent>/mapping/instances}; BagError when fewer
     than two agents have some, or such a topic carries another message type (a bag of another
@@ -134,11 +130,11 @@ def instance_map_counts(bag: str | Path) -> dict[str, int]:
     return counts
 
 
-def check_bag_against_ground_truth(bag: str | Path, gt: dict) -> None:
-    """BagError, before any node starts, when the ground truth cannot be this bag's: it lacks
-    an agent of the bag, or states another number of map snapshots for one (a ground_truth.json
-    copied from another bag would score right estimates as wrong verified transforms)."""
-    counts = instance_map_counts(bag)
+def check_bag_against_ground_truth(bag: str | Path, gt: dict, counts: dict[str, int]) -> None:
+    """BagError, before any node starts, when the ground truth cannot be this bag's (counts:
+    instance_map_counts of the bag): it lacks an agent of the bag, or states another number of
+    map snapshots for one (a ground_truth.json copied from another bag would score right
+    estimates as wrong verified transforms)."""
     missing = sorted(set(counts) - set(gt["T_scene_map"]))
     if missing:
         raise BagError(f"{bag}/ground_truth.json has no pose of agent(s) {', '.join(missing)} of the bag "
@@ -198,12 +194,13 @@ def _check_before_start(cfg: ReplayConfig, names: list[str]) -> None:
 def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     """ValueError before any node starts when cfg does not suit the bag (rate, restart,
     params file)."""
-    names = agents_in_bag(bag)
+    counts = instance_map_counts(bag)
+    names = sorted(counts)
     _check_before_start(cfg, names)
     # a bag's ground truth (none: a recorded bag) is checked before any node starts
     gt = ground_truth_of(bag, required=False)
     if gt is not None:
-        check_bag_against_ground_truth(bag, gt)
+        check_bag_against_ground_truth(bag, gt, counts)
     origin = (gt or {}).get("t_origin", 0.0)
     overrides = dict(cfg.overrides)
     keys = None

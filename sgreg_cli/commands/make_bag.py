@@ -78,6 +78,8 @@ class BagSpec:
                 raise BagSpecError(f"{name} (--{name.replace('_', '-')}) must be two finite numbers "
                                    f"(scene x, y in m), got {value!r}")
         # settings that would be ignored, and yet recorded in the bag's ground truth
+        if self.scan_b and not self.gt:
+            raise BagSpecError("a second capture (scan_b) needs its pseudo ground truth (gt)")
         if self.gt and not self.scan_b:
             raise BagSpecError("gt (--gt) moves a second capture: give it with scan_b (--scan-b)")
         if self.start_b is not None and self.opposite:
@@ -172,8 +174,6 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
         make_folder(out.parent)
     except OSError as exc:
         raise BagSpecError(str(exc)) from None
-    if spec.scan_b and not spec.gt:
-        raise BagSpecError("a second capture (scan_b) needs its pseudo ground truth (gt)")
     try:
         scene = read_instance_map(spec.scan)
         scene_b = read_instance_map(spec.scan_b) if spec.scan_b else None
