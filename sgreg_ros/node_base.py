@@ -2,6 +2,7 @@
 time), the agent id and its topics, the model, and one health status on /diagnostics."""
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import replace
 
@@ -135,8 +136,9 @@ class SgregNode(Node):
         their peers take their maps for one agent's that restarts (ERROR while it lasts)."""
         mine = sum(pub.topic_name == self.sole_topic for pub in self.publishers)   # none without a model
         others = self.count_publishers(self.sole_topic) - mine
+        # the pid tells the twins' lines apart (both nodes have one name) and which one to stop
         twin = (f"{others} other node(s) publish {self.sole_topic}: is agent '{self.name}' "
-                f"running twice?") if others > 0 else None
+                f"running twice? (this one is process {os.getpid()})") if others > 0 else None
         if twin and twin != self.twin:
             self.get_logger().error(twin)
         self.twin = twin

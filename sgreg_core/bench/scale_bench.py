@@ -20,6 +20,7 @@ Public API:
     scale_cases(cfg) -> list[(n, src InstanceMap, ref InstanceMap, T_gt)]
     run_scale(model, cfg, log) -> list[dict]   one row per size
     growth(rows, key) -> float                 the exponent k of time ~ n^k (least squares)
+    verified_and_right(reg, T_gt) -> bool      how each row's *_ok is counted
 """
 from __future__ import annotations
 
@@ -93,6 +94,12 @@ def _best_matched(reg, k: int) -> np.ndarray:
     return ids[np.sort(first)][:k]
 
 
+def verified_and_right(reg, T_gt: np.ndarray) -> bool:
+    """What a user counts as a registration: verified, and right by ground truth (an estimate
+    claiming success at a wrong pose is not one)."""
+    return bool(reg.success and two_agent_success(reg.T, T_gt))
+
+
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
@@ -141,10 +148,9 @@ def run_scale(model: SGRegModel, cfg: ScaleConfig, log=print) -> list[dict]:
         row = {"nodes": n, "src_nodes": g_src.num_nodes, "ref_nodes": g_ref.num_nodes,
                "edges": g_src.num_edges, "node_matches": dense.node_matches,
                "correspondences": dense.correspondences,
-               # verified and right by ground truth, as a user would count them
-               "coarse_ok": bool(coarse.success and two_agent_success(coarse.T, T_gt)),
-               "dense_requested_ok": bool(requested.success and two_agent_success(requested.T, T_gt)),
-               "dense_ok": bool(dense.success and two_agent_success(dense.T, T_gt)),
+               "coarse_ok": verified_and_right(coarse, T_gt),
+               "dense_requested_ok": verified_and_right(requested, T_gt),
+               "dense_ok": verified_and_right(dense, T_gt),
                "coarse_message_kb": coarse_bytes / 1e3, "dense_message_kb": dense_bytes / 1e3,
                "peak_rss_mb": _peak_mb()}
         for k in samples[0]:

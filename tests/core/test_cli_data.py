@@ -193,11 +193,20 @@ def test_bench_startup_times_no_process_that_failed():
 
 
 def test_bench_scale_counts_an_estimate_as_ok_only_when_ground_truth_agrees(monkeypatch):
-    """dense_requested_ok and dense_ok: verified and right, not what the estimate says of
-    itself (an estimate claiming success at a wrong pose is not ok). coarse_ok is judged by the
-    same line of run_scale; this case's coarse estimate fails verification, so it shows nothing."""
+    """Every *_ok: verified and right, not what the estimate says of itself (an estimate
+    claiming success at a wrong pose is not ok). This case's coarse estimate fails verification,
+    so coarse_ok's rule is checked on the helper every row is counted by."""
+    from types import SimpleNamespace
+
     from sgreg_core.bench import scale_bench
+    from sgreg_core.geometry import yaw_transform
     from sgreg_core.net.model import load_model
+
+    T_gt = yaw_transform(0.3, (1.0, 2.0, 0.0))
+    near = yaw_transform(0.3 + np.radians(1.0), (1.1, 2.0, 0.0))
+    assert scale_bench.verified_and_right(SimpleNamespace(success=True, T=near), T_gt)
+    assert not scale_bench.verified_and_right(SimpleNamespace(success=False, T=near), T_gt)
+    assert not scale_bench.verified_and_right(SimpleNamespace(success=True, T=yaw_transform(0.3, (4.0, 2.0, 0.0))), T_gt)
 
     model = load_model()
     [row] = scale_bench.run_scale(model, scale_bench.ScaleConfig(nodes=(50,), repeats=1), log=lambda s: None)

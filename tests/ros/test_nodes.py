@@ -3,6 +3,7 @@ this run's own): two agents register and every failure case of
 docs/ARCHITECTURE.md ("Failure behaviour") is counted while the nodes carry on."""
 import copy
 import os
+import re
 import signal
 import time
 
@@ -187,11 +188,16 @@ def test_an_agent_started_twice_is_reported(two, tmp_path):
     twin = processes.start_agents(["b"], executables=("agent",), overrides=FAST, log_dir=tmp_path,
                                   log_suffix="_twin")
     try:
-        def reported():
-            return any(level == 2 and "running twice" in message
-                       for level, _, message in w.levels.get("/b/agent", []))
+        def reporting_pids():
+            return {re.search(r"process (\d+)", message).group(1)
+                    for level, _, message in w.levels.get("/b/agent", [])
+                    if level == 2 and "running twice" in message}
 
-        assert w.spin_until(reported, 60, publish_maps=maps), w.levels.get("/b/agent", [])[-3:]
+        # both twins, told apart by the process they name
+        assert w.spin_until(lambda: len(reporting_pids()) == 2, 60, publish_maps=maps), \
+            w.levels.get("/b/agent", [])[-3:]
+        assert reporting_pids() == {str(p.proc.pid) for p in procs + twin
+                                    if p.agent == "b" and p.executable == "agent"}
         assert not any("running twice" in m for _, _, m in w.levels.get("/a/agent", []))
     finally:
         processes.stop(twin)
