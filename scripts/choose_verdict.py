@@ -17,6 +17,7 @@ and prints its weights.
 
     python scripts/choose_verdict.py RESULTS_DIR [RESULTS_DIR ...] [--register DIR ...]
                                      [--held-out scene0005] [--refit] [--min-objects K]
+                                     [--fix ambiguity=-2.353 ...]
 """
 from __future__ import annotations
 
@@ -109,23 +110,46 @@ def design(frames: list[dict]) -> np.ndarray:
                      col("footprint_share"), np.minimum(col("ambiguity"), 1.5), col("inlier_ratio")], 1)
 
 
+WEIGHTS = ("bias", "objects", "fitness", "share", "ambiguity", "inlier_ratio")   # design()'s columns
+
+
 def fit_logistic(X: np.ndarray, y: np.ndarray, l2: float = 1e-2, iters: int = 50,
-                 free_bias: bool = False) -> np.ndarray:
+                 free_bias: bool = False, fixed: dict[int, float] | None = None) -> np.ndarray:
     """Newton's method on the L2-regularised log-likelihood; free_bias: the first column (the
-    bias) is not regularised (where the classes separate, the bias must run free)."""
-    w = np.zeros(X.shape[1])
-    reg = np.full(X.shape[1], l2)
-    if free_bias:
-        reg[0] = 0.0
+    bias) is not regularised (where the classes separate, the bias must run free); fixed:
+    column -> weight held at that value (its term enters as an offset)."""
+    fixed = fixed or {}
+    free = [j for j in range(X.shape[1]) if j not in fixed]
+    offset = sum(X[:, j] * v for j, v in fixed.items()) if fixed else np.zeros(len(X))
+    Xf = X[:, free]
+    w = np.zeros(len(free))
+    reg = np.full(len(free), l2)
+    if free_bias and 0 in free:
+        reg[free.index(0)] = 0.0
     for _ in range(iters):
-        p = 1 / (1 + np.exp(-X @ w))
-        g = X.T @ (p - y) + reg * w
-        H = X.T @ (X * (p * (1 - p))[:, None]) + np.diag(reg)
+        p = 1 / (1 + np.exp(-(Xf @ w + offset)))
+        g = Xf.T @ (p - y) + reg * w
+        H = Xf.T @ (Xf * (p * (1 - p))[:, None]) + np.diag(reg)
         step = np.linalg.solve(H, g)
         w -= step
         if np.abs(step).max() < 1e-8:
             break
-    return w
+    out = np.zeros(X.shape[1])
+    out[free] = w
+    for j, v in fixed.items():
+        out[j] = v
+    return out
+
+
+def parse_fixed(items: list[str]) -> dict[int, float]:
+    """["ambiguity=-2.353"] -> {4: -2.353}."""
+    fixed = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in WEIGHTS or not value:
+            raise SystemExit(f"--fix {item!r}: expected NAME=VALUE, NAME one of {', '.join(WEIGHTS)}")
+        fixed[WEIGHTS.index(name)] = float(value)
+    return fixed
 
 
 def main() -> None:
@@ -136,12 +160,15 @@ def main() -> None:
     p.add_argument("--refit", action="store_true",
                    help="judge the grid's minimum confidence with the weights fitted here")
     p.add_argument("--min-objects", type=int, default=2, help="grid rows with fewer objects are not shown")
+    p.add_argument("--fix", nargs="*", default=[], metavar="NAME=VALUE",
+                   help=f"hold a confidence weight at a value while fitting the rest ({', '.join(WEIGHTS)})")
     args = p.parse_args()
+    fixed = parse_fixed(args.fix)
     frames = load_frames(args.dirs, args.held_out) + load_register_rows(args.register, args.held_out)
     print(f"{len(frames)} estimates from {len({f['bag'] for f in frames})} bags "
           f"(held-out rooms {args.held_out} left out)")
     X, y = design(frames), np.array([f["correct"] for f in frames], float)
-    w = fit_logistic(X, y)
+    w = fit_logistic(X, y, fixed=fixed)
     p_hat = 1 / (1 + np.exp(-X @ w))
     if args.refit:      # the grid judges the confidence the refitted weights give
         for f, p_f in zip(frames, p_hat):
