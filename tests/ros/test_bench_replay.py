@@ -69,6 +69,13 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "peers.confirm=false"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "offline" in bad.stderr
+    # the two runs compared bag by bag: what was run differently, the totals of both
+    diff = subprocess.run(SGREG + ["bench-diff", str(out), str(tmp_path / "off"), "--json", str(tmp_path / "d.json")],
+                          capture_output=True, text=True, timeout=60)
+    assert diff.returncode == 0 and "backend: ros -> offline" in diff.stdout, diff.stdout + diff.stderr
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["bags_in_both"] == 2 and d["totals"]["before"]["registrable"] == row["registrable_frames"]
+    assert d["totals"]["before"]["wrong_verified"] == row["wrong_verified"]
 
 
 def test_a_broken_suite_is_refused_in_one_line(tmp_path):
