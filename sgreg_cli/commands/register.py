@@ -203,13 +203,11 @@ def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     from sgreg_core.config import apply_overrides, from_dict, to_dict
     from sgreg_core.pipeline import PipelineConfig
 
-    unused = "pose." if args.coarse else "coarse_pose."
-    ignored = [o for o in args.overrides if o.startswith(unused)]
-    if ignored:    # the other mode's pose settings: taken silently, they would change nothing
-        raise ValueError(f"{', '.join(ignored)}: {unused}* applies to "
-                         f"{'dense' if args.coarse else 'coarse (--coarse)'} registration only; "
-                         f"{'--coarse' if args.coarse else 'dense'} takes "
-                         f"{'coarse_pose' if args.coarse else 'pose'}.*")
+    # (mode, its pose settings, the other mode's): taken silently, the other's would change nothing
+    mode, own, other = ("--coarse", "coarse_pose.", "pose.") if args.coarse else ("dense", "pose.", "coarse_pose.")
+    ignored = [o for o in args.overrides if o.startswith(other)]
+    if ignored:
+        raise ValueError(f"{', '.join(ignored)}: {mode} registration takes {own}*, not {other}*")
     data = to_dict(PipelineConfig(mode="coarse" if args.coarse else "dense",
                                   icp="never" if args.no_icp else "always"))
     return from_dict(PipelineConfig, apply_overrides(data, args.overrides))

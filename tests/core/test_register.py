@@ -119,7 +119,10 @@ def test_set_overrides_the_pipeline_config(data, capsys):
         assert code == 2 and err.startswith("sgreg register: --set: ") and "\n" not in err, bad
     code = main(["register", str(root / "src"), str(root / "ref"), "--coarse", "--set", "pose.footprint_rim=1"])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and "pose.* applies to dense registration only; --coarse takes coarse_pose.*" in err, err
+    assert code == 2 and "--coarse registration takes coarse_pose.*, not pose.*" in err, err
+    code = main(["register", str(root / "src"), str(root / "ref"), "--set", "coarse_pose.footprint_rim=1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "dense registration takes pose.*, not coarse_pose.*" in err, err
     for threads in ("0", "-3"):
         code = main(["register", str(root / "src"), str(root / "ref"), "--threads", threads])
         err = capsys.readouterr().err.strip()
