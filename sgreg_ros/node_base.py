@@ -72,15 +72,18 @@ class SgregNode(Node):
         accept_live_changes(self, self.table, self._apply)
 
     def _apply(self, changes: dict) -> None:
-        self.p.update(changes)
+        # every new config is built (and refused, ValueError) before anything changes: a
+        # refused set leaves the node, and what `ros2 param get` says, as they were
         health = pick(HealthConfig, changes)
-        if health:
-            self.health.cfg = replace(self.health.cfg, **health)
+        health_cfg = replace(self.health.cfg, **health) if health else self.health.cfg
         self.apply(changes)
+        self.health.cfg = health_cfg
+        self.p.update(changes)
         self.get_logger().info("parameters set: " + ", ".join(f"{k}={v!r}" for k, v in changes.items()))
 
     def apply(self, changes: dict) -> None:
-        """Apply live parameters (already checked) to the node's core."""
+        """Apply live parameters (each already in range) to the node's core: build every new
+        config first (ValueError when they do not fit together), then assign them."""
 
     def guarded(self, what: str, work, refuse) -> None:
         """work(), and a bug in it costs that one piece of work, not the node: logged and

@@ -33,7 +33,7 @@ from sgreg_core.runtime.agent import AgentConfig, AgentCore
 from sgreg_core.runtime.auth import AGENT_ID, AuthConfig, is_agent_id
 from sgreg_core.runtime.health import HealthConfig
 from sgreg_core.runtime.merge import MergeConfig, Merger
-from sgreg_core.runtime.peers import Peers, PeersConfig
+from sgreg_core.runtime.peers import Peers, PeersConfig, check_request_size
 from sgreg_core.runtime import views
 
 from . import convert, markers, qos
@@ -49,7 +49,8 @@ class RegistrationNodeConfig:
     weights_path: str = param("", "model weights (.safetensors with its .json); empty: the shipped model")
     peers: list = param(help="peer agent ids; [''] or []: every agent whose /<id>/sgreg/coarse appears",
                         factory=lambda: [""])
-    discovery_period_s: float = param(2.0, "how often to look for new peers", 0.1, 60.0, live=True)
+    discovery_period_s: float = param(2.0, "how often to look for new peers (none with a fixed peers list)",
+                                      0.1, 60.0, live=True)
     max_message_mb: float = param(32.0, "bigger peer messages are refused before they are decoded",
                                   0.1, 1024.0, live=True)
     merge_period_s: float = param(1.0, "how often the merged frame is recomputed and sent on /tf",
@@ -92,6 +93,7 @@ class RegistrationNode(SgregNode):
                 pipeline = PeersConfig().pipeline.with_verdict(**pick(VerdictConfig, p))
                 peers_cfg = PeersConfig(**pick(PeersConfig, p),
                                         pipeline=pipeline.with_pose(**pick(PoseConfig, p)))
+                check_request_size(peers_cfg, agent_cfg)
             self.agent = AgentCore(agent_cfg, model)
             self.agent.warm_up()
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
@@ -158,6 +160,7 @@ class RegistrationNode(SgregNode):
         # the new configs first: values that do not fit the others change nothing (ValueError)
         peers_cfg = replace(self.peers.cfg, **pick(PeersConfig, changes))
         agent_cfg = replace(self.agent.cfg, **pick(AgentConfig, changes))
+        check_request_size(peers_cfg, agent_cfg)
         if "discovery_period_s" in changes and self.discovery_timer is not None:
             self.destroy_timer(self.discovery_timer)
             self.discovery_timer = self.create_timer(changes["discovery_period_s"], self.on_discovery)

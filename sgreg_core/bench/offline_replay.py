@@ -32,7 +32,7 @@ from ..runtime.agent import AgentConfig, AgentCore
 from ..runtime.clock import seconds_to_ns
 from ..runtime.messages import GraphMessage
 from ..runtime.merge import MergeConfig, Merger
-from ..runtime.peers import Peers, PeersConfig
+from ..runtime.peers import Peers, PeersConfig, check_request_size
 from ..runtime.wire import ENCODINGS, pack_features, unpack_features
 from ..types import InstanceMap
 from .replay_score import ResultRecord
@@ -53,6 +53,9 @@ class OfflineReplayConfig:
     peers: PeersConfig = field(default_factory=PeersConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
     seed: int = 0
+
+    def __post_init__(self):
+        check_request_size(self.peers, self.agent)     # refused before any bag, not at the first
 
 
 def _over_the_wire(msg: GraphMessage, encoding: int) -> GraphMessage:

@@ -71,7 +71,7 @@ from ..metrics import rre, rte
 from ..net.model import NodeFeatures, SGRegModel
 from ..maps.level import Levelling
 from ..pipeline import PipelineConfig, Registration, register_features, to_map_frames
-from .agent import AgentCore
+from .agent import AgentConfig, AgentCore
 from .intake import check_message
 from .kept import Kept, centers_of, dense_shift, levelled_alike, median_shift, moved_between
 from .messages import DenseRequestMessage, Estimate, GraphMessage
@@ -83,7 +83,8 @@ class PeersConfig:
     max_request_nodes: a dense request names at most this many of the peer's nodes, those of
         its most confident node matches: point matching and the peer's shape features cost per
         node, and a few dozen objects fix a pose (in a building's 200-node maps this keeps a
-        dense estimate near a second and the answer small).
+        dense estimate near a second and the answer small). Never below
+        AgentConfig.min_nodes (check_request_size): an answer on fewer would be refused.
     min_request_interval_s: at most one dense request per peer per this interval once a link to
         it is confirmed. A request goes out only when either map changed since the last
         answered exchange: the same two graphs give the same dense estimate, so asking again
@@ -110,7 +111,8 @@ class PeersConfig:
         most), and only those to this agent arrive here: for them the window grows by itself
         for every second since the last one (a quiet link in a busy fleet is not locked out).
     max_peers / peer_timeout_s: at most this many peers are kept; a peer silent for
-        peer_timeout_s is forgotten (expire()).
+        peer_timeout_s is forgotten (expire()). max_peers is checked as a peer arrives:
+        lowered live, it refuses new peers, and those already kept go only when silent.
     max_points: bigger dense messages are refused (oversized; graphs with more than
         AgentConfig.max_nodes nodes likewise).
     keep_correspondences: keep the inlier point correspondences of the link's last dense
@@ -223,7 +225,8 @@ class PeersConfig:
     max_retries: int = param(3, "retries before giving up until the next interval", 0, 100, live=True)
     min_coarse_matches: int = param(4, "node matches needed for a coarse estimate", 3, 1000, live=True)
     sequence_window: int = 1000
-    max_peers: int = param(16, "peers kept at most (others are refused)", 1, 1000, live=True)
+    max_peers: int = param(16, "peers kept at most: a new peer over it is refused (lowered live, the "
+                           "peers already kept stay until silent for peer_timeout_s)", 1, 1000, live=True)
     peer_timeout_s: float = param(120.0, "a peer silent for this long is forgotten", 10.0, 86400.0,
                                   live=True)
     max_points: int = param(500_000, "dense graphs with more points are refused", 1000, 50_000_000, live=True)
@@ -321,6 +324,14 @@ class PeerLink:
         return "confirmed" if self.confirmed else "candidate" if self.candidate else "none"
 
 
+def check_request_size(cfg: PeersConfig, agent: AgentConfig) -> None:
+    """ValueError when no dense request could ever go out: a request names at most
+    max_request_nodes nodes, and an answer on fewer than min_nodes would be refused."""
+    if cfg.max_request_nodes < agent.min_nodes:
+        raise ValueError(f"peers: max_request_nodes ({cfg.max_request_nodes}) must not be below "
+                         f"min_nodes ({agent.min_nodes}): no dense request would ever be sent")
+
+
 class Peers:
     """All peers of one agent: feed take_own_map / on_coarse / on_dense / on_tick; read links
     and counters."""
@@ -328,6 +339,7 @@ class Peers:
     def __init__(self, cfg: PeersConfig, agent: AgentCore, model: SGRegModel,
                  log: Callable[[str], None] = print,
                  on_restart: Callable[[str], None] = lambda peer: None):
+        check_request_size(cfg, agent.cfg)
         self.cfg = cfg
         self.agent = agent
         self.model = model

@@ -932,6 +932,20 @@ def test_no_estimate_before_own_map(model, graphs):
     assert reg.counters["own_map_not_ready"] == 1
 
 
+def test_a_request_size_that_no_answer_could_meet_is_refused(model):
+    """max_request_nodes below min_nodes: no request would ever go out, and the link would
+    wait in silence (the node refuses it at start and live, by this check)."""
+    from sgreg_core.bench.offline_replay import OfflineReplayConfig
+    from sgreg_core.runtime.peers import check_request_size
+
+    own = AgentCore(AgentConfig(name="a", min_nodes=10), model)
+    with pytest.raises(ValueError, match=r"max_request_nodes \(8\) must not be below min_nodes \(10\)"):
+        Peers(PeersConfig(max_request_nodes=8), own, model)
+    with pytest.raises(ValueError, match="no dense request would ever be sent"):
+        OfflineReplayConfig(agent=AgentConfig(min_nodes=60))
+    check_request_size(PeersConfig(max_request_nodes=10), own.cfg)     # equal is enough
+
+
 def test_a_malformed_graph_before_the_own_map_is_refused_not_raised(model, graphs):
     _, b, _, _ = make_agents(model, graphs)
     own = AgentCore(AgentConfig(name="a"), model)

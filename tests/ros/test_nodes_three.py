@@ -51,6 +51,8 @@ def test_three_agents_register_pairwise(ros, tmp_path):
     # each in range, together no map could be registered
     ("agent", {"min_nodes": 500, "max_nodes": 100}, "min_nodes (500) must not exceed max_nodes (100)"),
     ("registration", {"min_nodes": 500, "max_nodes": 100}, "min_nodes (500) must not exceed max_nodes (100)"),
+    # no dense request could go out: it names fewer nodes than an answer needs
+    ("registration", {"min_nodes": 60}, "max_request_nodes (48) must not be below min_nodes (60)"),
 ])
 def test_invalid_parameters_are_refused_at_start(exe, params, words):
     out = subprocess.run(processes.node_command(exe, "a", params_file=None, overrides=params), capture_output=True,

@@ -147,6 +147,36 @@ def test_parameters_take_effect_or_are_refused(agent_a):
     assert not alive(procs)
 
 
+def test_a_refused_set_of_parameters_changes_nothing(ros, tmp_path):
+    """A set given at once (set_parameters_atomically: a launch file, an rclpy client) with one
+    value that does not fit the others is refused whole: the values that fit are not put in
+    effect either, and `ros2 param get` says what is."""
+    procs = processes.start_agents(["a"], executables=("agent",), overrides={"min_nodes": 12},
+                                   log_dir=tmp_path)
+    w = Watcher(["a"])
+    try:
+        client = AsyncParameterClient(w.node, "/a/agent")
+        assert client.wait_for_services(timeout_sec=90), f"dead: {alive(procs)}"
+        future = client.set_parameters_atomically([Parameter("map_timeout_s", value=1.0),
+                                                   Parameter("max_nodes", value=11)])
+        assert w.spin_until(future.done, 10)
+        res = future.result().result
+        assert not res.successful and "min_nodes (12) must not exceed max_nodes (11)" in res.reason
+        assert _get(w, "/a/agent", "map_timeout_s", "max_nodes") == [(Parameter.Type.DOUBLE, 30.0),
+                                                                     (Parameter.Type.INTEGER, 2000)]
+        # no map yet: a 1 s map timeout in effect would say ERROR within a second or two
+        w.levels.clear()
+        w.spin_until(lambda: False, 4.0)
+        assert w.levels.get("/a/agent") and all(lv != ERROR for lv, _, _ in w.levels["/a/agent"]), w.levels
+        [ok] = _set(w, "/a/agent", map_timeout_s=1.0)          # alone it fits, and takes effect
+        assert ok.successful, ok.reason
+        assert w.spin_until(lambda: any(lv == ERROR for lv, _, _ in w.levels.get("/a/agent", [])), 10), w.levels
+        assert not alive(procs)
+    finally:
+        processes.stop(procs)
+        w.close()
+
+
 def _node(args, **kw):
     return subprocess.Popen([sys.executable, "-m", "sgreg_ros", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True, **kw)
