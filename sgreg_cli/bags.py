@@ -41,7 +41,8 @@ def qos_for(topic: str) -> QoSProfile:
     """The QoS sgreg's own nodes use on a topic of that name (see qos.py)."""
     for suffix, profile in (("/sgreg/coarse", qos.COARSE), ("/sgreg/dense", qos.DENSE),
                             ("/sgreg/dense_request", qos.DENSE_REQUEST),
-                            ("/mapping/instances", qos.INSTANCES), ("/tf_static", qos.TF_STATIC)):
+                            ("/mapping/instances", qos.INSTANCES), ("/tf_static", qos.TF_STATIC),
+                            ("/sgreg/markers", qos.VIEW), ("/sgreg/merged_cloud", qos.VIEW)):
         if topic.endswith(suffix):
             return profile
     return qos.RESULTS
@@ -59,6 +60,22 @@ def offered_qos(profile: QoSProfile) -> Qos:
                            else QosDurability.VOLATILE),
                deadline=zero, lifespan=zero, liveliness=QosLiveliness.AUTOMATIC,
                liveliness_lease_duration=zero, avoid_ros_namespace_conventions=False)
+
+
+def play_qos(conn) -> QoSProfile:
+    """The QoS a bag topic is played with: the recorded publishers' reliability and durability
+    when they all agree (`ros2 bag play` adapts to the recorded offers: a transient-local
+    subscriber, RViz's markers, matches only a transient-local publisher), else sgreg's for a
+    topic of that name; the depth is sgreg's (rosbag2 records 0)."""
+    base = qos_for(conn.topic)
+    offered = getattr(conn.ext, "offered_qos_profiles", None) or []
+    reliability = {q.reliability == QosReliability.BEST_EFFORT for q in offered}
+    durability = {q.durability == QosDurability.TRANSIENT_LOCAL for q in offered}
+    if len(reliability) != 1 or len(durability) != 1:      # none recorded, or publishers differ
+        return base
+    return QoSProfile(depth=base.depth,
+                      reliability=ReliabilityPolicy.BEST_EFFORT if reliability.pop() else ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if durability.pop() else DurabilityPolicy.VOLATILE)
 
 
 def adapted_qos(topic: str, offered: list[QoSProfile]) -> QoSProfile:
@@ -162,7 +179,10 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     At the end it waits up to `flush_timeout` seconds until reliable subscribers acknowledged
     everything. With clock_hz > 0 it also publishes the bag's time on /clock at that rate (from
     the bag's start, during the delay too), as `ros2 bag play --clock` does, so that nodes run
-    with use_sim_time follow the bag.
+    with use_sim_time follow the bag; the bag's own /clock is then not played (two clocks would
+    send time back and forth). Topics are played with their recorded QoS (play_qos), on the
+    bag's timeline: a topic that starts late in the bag starts as late. A topic whose message
+    type is not installed is left out with a line in the log, as `ros2 bag play` does.
     Each message is checked by deserialising it first; one that does not decode, or an instance
     map whose points are not finite or absurdly far (points_problem), is reported and
     skipped, and the rest of the bag plays on. A damaged chunk (many messages compressed
@@ -174,28 +194,39 @@ def play_bag(node, path: str | Path, rate: float = 1.0, topics: list[str] | None
     reader = open_bag(path)
     try:
         conns = select_connections(reader, topics, path)
-        classes = {c.id: message_class(c.msgtype) for c in conns}
+        if clock_hz > 0:
+            conns = [c for c in conns if c.topic != "/clock"]
+        classes = {}
+        for c in conns:
+            try:
+                classes[c.id] = message_class(c.msgtype)
+            except BagError as exc:
+                log(f"not playing {c.topic}: {exc}")
+        conns = [c for c in conns if c.id in classes]
+        if not conns:
+            raise BagError(f"bag {path}: nothing to play (no topic of an installed message type)")
         pubs = {}
         for c in conns:
             if c.topic not in pubs:
-                pubs[c.topic] = node.create_publisher(classes[c.id], c.topic, qos_for(c.topic))
+                pubs[c.topic] = node.create_publisher(classes[c.id], c.topic, play_qos(c))
         clock = _BagClock(node, reader.start_time, rate, clock_hz)
-        deadline = time.monotonic() + wait_subscribers
-        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
-            time.sleep(0.05)
-        clock.sleep_until(time.monotonic() + delay)
-        t0_bag, t0_wall = None, time.monotonic()
+        # the bag's timeline from its start: a topic selected with `topics` that starts late
+        # in the bag starts as late (and /clock runs through the gap)
+        t0_bag = reader.start_time
         try:
+            deadline = time.monotonic() + wait_subscribers
+            while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
+                time.sleep(0.05)
+            clock.sleep_until(time.monotonic() + delay)
+            t0_wall = time.monotonic()
+            report.clock = (t0_wall, t0_bag * 1e-9)
+            clock.start(t0_wall, t0_bag)
             for index, (conn, t_ns, raw) in enumerate(read_messages(reader, conns, path)):
                 if should_stop():
                     break
                 if not rclpy.ok():    # rclpy's SIGTERM handler shuts the context down
                     report.interrupted = "shutdown"
                     break
-                if t0_bag is None:
-                    t0_bag = t_ns
-                    report.clock = (t0_wall, t_ns * 1e-9)
-                    clock.start(t0_wall, t_ns)
                 clock.sleep_until(t0_wall + (t_ns - t0_bag) * 1e-9 / rate)
                 problem = _message_problem(bytes(raw), classes[conn.id])
                 if problem:
@@ -245,6 +276,7 @@ class _BagClock:
             self.msg = Clock()
             self.pub = node.create_publisher(Clock, "/clock", 10)
         self.rate, self.wall0, self.bag0 = rate, None, start_ns
+        self.next_tick = 0.0
 
     def start(self, wall0: float, bag0_ns: int) -> None:
         self.wall0, self.bag0 = wall0, bag0_ns
@@ -252,13 +284,15 @@ class _BagClock:
     def sleep_until(self, wall: float) -> None:
         while rclpy.ok():
             now = time.monotonic()
-            if self.pub is not None:
+            if self.pub is not None and now >= self.next_tick:   # at clock_hz, however often called
                 t = self.bag0 + (0 if self.wall0 is None else int((now - self.wall0) * self.rate * 1e9))
                 self.msg.clock.sec, self.msg.clock.nanosec = divmod(t, 1_000_000_000)
                 self.pub.publish(self.msg)
+                # fallen behind (a slow publish): the next tick a period from now, no burst
+                self.next_tick = max(self.next_tick + self.period, now + 0.5 * self.period)
             if now >= wall:
                 return
-            time.sleep(min(wall - now, self.period or wall - now))
+            time.sleep(min(wall - now, (self.next_tick - now) if self.pub is not None else wall - now))
 
 
 class BagRecorder:
@@ -314,6 +348,10 @@ def spin_for(node, duration: float) -> None:
             rclpy.spin_once(node, timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # the signal handler shut the context down between the check and the wait: a stop
+        if rclpy.ok():
+            raise
 
 
 def instance_maps_in_bag(path: str | Path, t_origin: float = 0.0) -> list:

@@ -29,13 +29,17 @@ def _bag_report(bag: str, topics: list[str] | None) -> str:
     try:
         for conn, t_ns, raw in read_messages(reader, select_connections(reader, topics, bag), bag):
             meter.add(conn.topic, t_ns * 1e-9, len(raw))
+        # first to last message of the whole recording (rosbags' end_time is the last + 1 ns);
         # a bag with no message has no time span (rosbags gives placeholders)
-        span = (reader.end_time - reader.start_time) * 1e-9 if reader.message_count else 0.0
+        span = (reader.end_time - 1 - reader.start_time) * 1e-9 if reader.message_count else 0.0
     finally:
         reader.close()
-    rows = meter.report(span=span)
-    return f"bag {bag}: {span:.1f} s\n" + (format_table(HEADER, [r.as_row() for r in rows]) if rows
-                                           else "(no messages)")
+    # a recording shorter than a millisecond (one message) has no rate worth printing
+    rows = meter.report(span=span if span >= 1e-3 else 0.0)
+    if not rows:
+        return f"bag {bag}: {span:.1f} s\n(no messages)"
+    return (f"bag {bag}: {span:.1f} s (rates over the whole recording; '-': no time to divide by)\n"
+            + format_table(HEADER, [r.as_row() for r in rows]))
 
 
 def run(args) -> int:
@@ -57,8 +61,9 @@ def run(args) -> int:
         return 0
 
     import rclpy
+    from rclpy.qos import qos_profile_sensor_data
 
-    from ..bags import message_class, qos_for, spin_for
+    from ..bags import message_class, spin_for
 
     rclpy.init()
     node = rclpy.create_node("sgreg_bw")
@@ -70,9 +75,13 @@ def run(args) -> int:
             wanted = topic in args.topics if args.topics else "/sgreg/" in topic
             if wanted and topic not in watched:
                 watched.add(topic)
+                # best effort and volatile, as `ros2 topic bw`: matches every publisher (a
+                # reliable reader hears nothing of a best-effort one) and counts no message
+                # a transient-local publisher stored before bw joined
                 node.create_subscription(message_class(types[0]), topic,
                                          lambda raw, t=topic: meter.add(t, time.monotonic(), len(raw)),
-                                         qos_for(topic), raw=True)
+                                         qos_profile_sensor_data, raw=True)
+                meter.watch(topic, time.monotonic())
 
     def show():
         rows = meter.report(now=time.monotonic())

@@ -9,16 +9,19 @@ from dataclasses import dataclass
 
 @dataclass
 class TopicBandwidth:
+    """bytes_per_s: None where no time has passed to divide by (one message in a bag)."""
+
     topic: str
     messages: int
-    bytes_per_s: float
+    bytes_per_s: float | None
     mean_bytes: float
     min_bytes: int
     max_bytes: int
     total_bytes: int
 
     def as_row(self) -> list[str]:
-        return [self.topic, str(self.messages), human_bytes(self.bytes_per_s) + "/s",
+        rate = "-" if self.bytes_per_s is None else human_bytes(self.bytes_per_s) + "/s"
+        return [self.topic, str(self.messages), rate,
                 human_bytes(self.mean_bytes), human_bytes(self.min_bytes),
                 human_bytes(self.max_bytes), human_bytes(self.total_bytes)]
 
@@ -52,6 +55,12 @@ class BandwidthMeter:
         self.samples: dict[str, deque] = defaultdict(deque)
         self.totals: dict[str, int] = defaultdict(int)
         self.counts: dict[str, int] = defaultdict(int)
+        self.since: dict[str, float] = {}     # topic -> when it was first watched (live)
+
+    def watch(self, topic: str, t: float) -> None:
+        """The topic is listened to from t on: until a whole window has passed, its rate divides
+        by the time since then, not by the window (which would read low at first)."""
+        self.since.setdefault(topic, t)
 
     def add(self, topic: str, t: float, size: int) -> None:
         q = self.samples[topic]
@@ -68,9 +77,10 @@ class BandwidthMeter:
 
     def report(self, now: float | None = None, span: float | None = None) -> list[TopicBandwidth]:
         """One row per topic. The rate divides the window's bytes by `span` (seconds) if given,
-        else by the window length (live) or the time between first and last sample (bags).
-        Live (`now` and a window), samples older than the window are dropped first: a topic
-        that went quiet reads 0 once its last message has left the window."""
+        else by the window length (live; the time since the topic was watched while that is
+        shorter) or the time between first and last sample (bags); no rate (None) where that
+        time is 0. Live (`now` and a window), samples older than the window are dropped first:
+        a topic that went quiet reads 0 once its last message has left the window."""
         rows = []
         for topic in sorted(self.samples):
             q = self.samples[topic]
@@ -81,11 +91,15 @@ class BandwidthMeter:
                     rows.append(TopicBandwidth(topic, 0, 0.0, 0.0, 0, 0, self.totals[topic]))
                 continue
             sizes = [s for _, s in q]
-            if span is None:
-                duration = self.window_s if self.window_s is not None else (q[-1][0] - q[0][0])
-            else:
+            if span is not None:
                 duration = span
-            rate = sum(sizes) / duration if duration and duration > 0 else float(sum(sizes))
+            elif self.window_s is None:
+                duration = q[-1][0] - q[0][0]
+            elif now is not None and topic in self.since:
+                duration = min(self.window_s, now - self.since[topic])
+            else:
+                duration = self.window_s
+            rate = sum(sizes) / duration if duration > 0 else None
             rows.append(TopicBandwidth(topic, len(sizes), rate, sum(sizes) / len(sizes),
                                        min(sizes), max(sizes), self.totals[topic]))
         return rows

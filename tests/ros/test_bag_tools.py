@@ -127,6 +127,14 @@ def test_play_ends_cleanly_on_sigterm(tmp_path):
     out, err = play.communicate(timeout=20)
     assert play.returncode == 130 and out.startswith("stopped by Ctrl-C: played "), (out, err)
     assert "Traceback" not in err, err
+    # Ctrl-C while play still waits for its start (--delay): the same, with nothing played
+    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "30"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert play.stderr.readline().startswith("sgreg play: playing")
+    time.sleep(1.0)
+    play.send_signal(signal.SIGINT)
+    out, err = play.communicate(timeout=20)
+    assert play.returncode == 130 and out.startswith("stopped by Ctrl-C: played 0 messages"), (out, err)
 
 
 def test_corrupted_message_is_reported_and_the_rest_plays(tmp_path):
@@ -251,3 +259,138 @@ def test_record_refuses_an_uncreatable_folder_and_a_negative_duration(tmp_path):
                       (["--out", str(tmp_path / "bag"), "--duration", "-1"], "--duration must be >= 0")):
         out = subprocess.run(SGREG + ["record", "/x"] + argv, capture_output=True, text=True, timeout=30)
         assert out.returncode == 2 and why in out.stderr and "Traceback" not in out.stderr, out.stderr
+
+
+def write_odd_bag(path):
+    """A bag as other tools record them: its own /clock (sim time from 0), markers recorded
+    transient-local, a topic of a message type not installed here, a topic that starts 1 s
+    into the bag, and a burst of 200 messages in its first half second."""
+    from rosbags.typesys import get_types_from_msg
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+    from visualization_msgs.msg import MarkerArray
+
+    from sgreg_cli.bags import offered_qos
+    from sgreg_ros import qos
+
+    store = typestore()
+    store.register(get_types_from_msg("int32 v", "foo_msgs/msg/Bar"))
+    t0 = 10**9
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        clock = w.add_connection("/clock", "rosgraph_msgs/msg/Clock", typestore=store)
+        markers = w.add_connection("/x/sgreg/markers", "visualization_msgs/msg/MarkerArray", typestore=store,
+                                   offered_qos_profiles=[offered_qos(qos.VIEW)])
+        foo = w.add_connection("/foo", "foo_msgs/msg/Bar", typestore=store)
+        late = w.add_connection("/late", "std_msgs/msg/String", typestore=store)
+        burst = w.add_connection("/burst", "std_msgs/msg/String", typestore=store)
+        for i in range(200):        # every 2.5 ms: /clock must still go out at its own rate
+            w.write(burst, t0 + i * 25 * 10**5, serialize_message(String(data="b")))
+        for i in range(6):
+            c = Clock()
+            c.clock.nanosec = i * 10**8
+            w.write(clock, t0 + i * 10**8, serialize_message(c))
+        for i in range(3):
+            w.write(markers, t0 + i * 10**8, serialize_message(MarkerArray()))
+            w.write(foo, t0 + i * 10**8, store.serialize_cdr(store.types["foo_msgs/msg/Bar"](v=i), "foo_msgs/msg/Bar"))
+        w.write(late, t0 + 10**9, serialize_message(String(data="late")))
+
+
+def test_play_keeps_one_clock_the_recorded_qos_and_the_bags_timeline(tmp_path):
+    """As `ros2 bag play`: with --clock the bag's own /clock is not played too (time would go
+    back and forth), topics are offered with the QoS they were recorded with (RViz subscribes
+    to markers transient-local), a topic of a type not installed is left out with a line, and
+    a topic selected with --topics keeps its place on the bag's timeline."""
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+    from visualization_msgs.msg import MarkerArray
+
+    from sgreg_ros import qos
+
+    bag = tmp_path / "odd"
+    write_odd_bag(bag)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("odd_listener", context=ctx)
+        clocks, markers = [], []
+        node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9), 100)
+        node.create_subscription(MarkerArray, "/x/sgreg/markers", markers.append, qos.VIEW)
+        for topic in ("/late", "/burst"):       # a subscriber on every topic: no wait for one
+            node.create_subscription(String, topic, lambda m: None, 10)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+
+        def run(*args):
+            play = subprocess.Popen(SGREG + ["play", str(bag), "--clock", "20", "--wait-subscribers", "20",
+                                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            deadline = time.monotonic() + 60
+            while play.poll() is None and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+            for _ in range(20):
+                ex.spin_once(timeout_sec=0.05)
+            out, err = play.communicate(timeout=10)
+            assert play.returncode == 0, err
+            return err
+
+        err = run("--delay", "0.5")
+        assert "not playing /foo: message type foo_msgs/msg/Bar is not available" in err, err
+        assert len(markers) == 3, f"a transient-local subscriber got {len(markers)} of 3 markers"
+        assert clocks and all(b >= a for a, b in zip(clocks, clocks[1:])), "time went back on /clock"
+        assert min(clocks) >= 1.0, "the bag's own /clock (sim time from 0) was played beside --clock"
+        assert len(clocks) < 20 * 4, f"{len(clocks)} /clock messages in about 1.5 s at 20 Hz"
+        # only the late topic: it still comes 1 s into the bag, /clock running through the gap
+        clocks.clear()
+        run("--topics", "/late", "--delay", "0.2")
+        assert any(1.1 < c < 1.9 for c in clocks), f"/clock jumped over the bag's first second: {clocks}"
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_bw_of_a_one_message_bag_gives_no_rate(tmp_path):
+    one = tmp_path / "one"
+    write_bag(one, n=1)
+    out = subprocess.run(SGREG + ["bw", "--bag", str(one)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    line = next(l for l in out.stdout.splitlines() if l.startswith("/b/sgreg/coarse"))
+    assert line.split()[2] == "-", out.stdout       # not 997000.00 MB/s
+
+
+def test_live_bw_hears_a_best_effort_topic_at_its_rate_from_the_first_seconds():
+    """As `ros2 topic bw`: a best-effort publisher is heard (a reliable reader hears nothing of
+    it), and before a whole window has passed the rate divides by the time watched: 20 messages
+    of about 1 kB a second read about 20 kB/s, not 6 kB/s of a 10 s window."""
+    import re
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import qos_profile_sensor_data
+    from std_msgs.msg import String
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node("be_talker", context=ctx)
+        pub = node.create_publisher(String, "/x/sgreg/chatter", qos_profile_sensor_data)
+        msg = String(data="x" * 1000)
+        node.create_timer(0.05, lambda: pub.publish(msg))
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        bw = subprocess.Popen(SGREG + ["bw", "/x/sgreg/chatter", "--duration", "5", "--window", "10"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while bw.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        out, err = bw.communicate(timeout=10)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    assert bw.returncode == 0, err
+    last = [l for l in out.splitlines() if l.startswith("/x/sgreg/chatter")][-1]
+    rate = re.search(r"([\d.]+) kB/s", last)
+    assert rate and 12.0 < float(rate.group(1)) < 30.0, out
