@@ -106,7 +106,7 @@ _LIMITS = {
     "mapping_period": (0.2, 3600.0, " s"),    # 0.2: the walk's 5 poses a second
     "voxel": (0.0, 1.0, " m"),                # 0: no downsampling
     "clearance": (0.0, 2.0, " m"),
-    "waypoints": (1, 100, ""),
+    "waypoints": (2, 100, ""),
     "agents": (2, 26, ""),                    # a to z
 }
 
@@ -129,7 +129,7 @@ def add_arguments(p):
     p.add_argument("--range-b", type=float, help="b's sensor range (m), if not a's")
     p.add_argument("--fov-b", type=float, help="b's field of view (deg), if not a's")
     p.add_argument("--clearance", type=float, default=0.3, help="distance walks keep from obstacles (m)")
-    p.add_argument("--waypoints", type=int, default=2, help="far-apart places each walk visits")
+    p.add_argument("--waypoints", type=int, default=2, help="far-apart places each walk visits (2: one crossing)")
     p.add_argument("--start-a", type=_xy, help="X,Y: where a starts (scene frame, m)")
     p.add_argument("--start-b", type=_xy, help="X,Y: where b starts (own path only)")
     p.add_argument("--random-start", action="store_true",
@@ -164,7 +164,7 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
 
     from sgreg_core.maps.instance_map import InstanceMapError, read_instance_map
     from sgreg_core.paths import make_folder
-    from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig
+    from sgreg_core.simulation.observe import SensorConfig, TrajectoryConfig, walkable_share
     from sgreg_core.simulation.walks import WalkConfig, level_transform, simulate
 
     out = Path(out)
@@ -201,8 +201,12 @@ def make_bag(spec: BagSpec, out: str | Path, log=lambda s: None) -> dict:
                      trajectory=TrajectoryConfig(speed=spec.speed, clearance=spec.clearance,
                                                  waypoints=spec.waypoints, start=spec.start_a,
                                                  random_start=spec.random_start))
-    log(f"simulating {spec.agents} agents in {spec.scan} ...")
     try:
+        # walks keep to the largest connected free area: said, since a room behind a closed
+        # door is then seen (occlusion is not modelled) but never walked
+        share = walkable_share(scene, cfg.trajectory)
+        log(f"simulating {spec.agents} agents in {spec.scan} (walks reach {share:.0%} of its free floor"
+            + ("; closed doors or furniture cut off the rest)" if share < 0.95 else ")") + " ...")
         sim = simulate(scene, np.random.default_rng(spec.seed), cfg, scene_b=scene_b,
                        progress=lambda f: log(f"  agents simulated: {f:.0%}"))
     except ValueError as exc:   # e.g. no free space to walk in

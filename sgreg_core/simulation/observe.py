@@ -8,6 +8,9 @@ Public API:
         the accumulated map after each period (instances appear partially and grow)
     TrajectoryConfig, make_trajectory(imap, rng, cfg) -> (times (T,), poses (T, 3) x, y, yaw)
         a walk across the free space of the scene: shortest paths through far-apart free cells
+    walkable_share(imap, cfg) -> float
+        the share of the scene's free floor that a walk can reach (closed doors and furniture
+        cut the rest off: walks keep to the largest connected free area)
     reverse_trajectory(times, poses) -> (times, poses)     the same path walked the other way
 
 Poses are (T, 3) arrays (x, y, yaw) or (T, 4, 4) camera-to-world transforms whose +x axis
@@ -40,8 +43,10 @@ class SensorConfig:
 class TrajectoryConfig:
     cell: float = 0.1          # m, free-space grid
     clearance: float = 0.3     # m, distance kept from obstacles (real rooms are cluttered: 0.15)
-    waypoints: int = 2         # far-apart free cells visited in turn (2: one crossing)
-    start: tuple[float, float] | None = None   # scene x, y of the first waypoint; None: seeded
+    waypoints: int = 2         # far-apart free cells visited in turn (2, the least: one crossing)
+    start: tuple[float, float] | None = None   # scene x, y of the first waypoint (at most
+                                               # max_start_offset from the walkable floor); None: seeded
+    max_start_offset: float = 1.0   # m; a start farther from the walkable floor is refused
     random_start: bool = False  # seeded first waypoint: any free cell (walks differ from seed
                                 # to seed) instead of the far end of the free space
     speed: float = 0.5         # m/s
@@ -89,6 +94,8 @@ def observe_sequence(imap: InstanceMap, times, poses, cfg: SensorConfig | None =
 
 
 def _free_grid(imap: InstanceMap, cfg: TrajectoryConfig):
+    """(the largest connected free area, as a grid mask; the grid's origin; its share of all
+    free cells). Closed doors and furniture are obstacles, as to a robot."""
     pts = imap.points
     lo = pts[:, :2].min(0)
     ij = np.floor((pts[:, :2] - lo) / cfg.cell).astype(np.int64)
@@ -108,8 +115,13 @@ def _free_grid(imap: InstanceMap, cfg: TrajectoryConfig):
     labels, n = ndimage.label(free)
     if n == 0:
         raise ValueError("no free space found to walk in this scene")
-    largest = np.argmax(np.bincount(labels.ravel())[1:]) + 1
-    return labels == largest, lo
+    sizes = np.bincount(labels.ravel())[1:]
+    largest = np.argmax(sizes) + 1
+    return labels == largest, lo, float(sizes.max() / sizes.sum())
+
+
+def walkable_share(imap: InstanceMap, cfg: TrajectoryConfig | None = None) -> float:
+    return _free_grid(imap, cfg or TrajectoryConfig())[2]
 
 
 def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: TrajectoryConfig | None = None):
@@ -119,7 +131,9 @@ def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: Trajectory
     the free cell farthest from all waypoints so far (farthest-point order), so two waypoints
     cross the scene and more of them tour it."""
     cfg = cfg or TrajectoryConfig()
-    free, lo = _free_grid(imap, cfg)
+    if cfg.waypoints < 2:
+        raise ValueError(f"waypoints must be at least 2 (a walk from one to another), got {cfg.waypoints}")
+    free, lo, _ = _free_grid(imap, cfg)
     cells = np.argwhere(free)
     index = -np.ones(free.shape, dtype=np.int64)
     index[tuple(cells.T)] = np.arange(len(cells))
@@ -140,7 +154,13 @@ def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: Trajectory
 
     if cfg.start is not None:
         centers = (cells + 0.5) * cfg.cell + lo
-        first = int(np.argmin(np.linalg.norm(centers - np.asarray(cfg.start, np.float64), axis=1)))
+        off = np.linalg.norm(centers - np.asarray(cfg.start, np.float64), axis=1)
+        first = int(np.argmin(off))
+        if off[first] > cfg.max_start_offset:     # not quietly moved somewhere else
+            x, y = centers[first]
+            raise ValueError(f"start ({cfg.start[0]:g}, {cfg.start[1]:g}) lies {off[first]:.1f} m from the "
+                             f"walkable floor (the largest connected free area: a closed door, a wall or "
+                             f"furniture cuts it off); the nearest walkable point is ({x:.2f}, {y:.2f})")
     elif cfg.random_start:
         first = int(rng.integers(len(cells)))
     else:
@@ -149,7 +169,7 @@ def make_trajectory(imap: InstanceMap, rng: np.random.Generator, cfg: Trajectory
     d, pred = dijkstra(g, directed=False, indices=first, return_predecessors=True)
     nearest = d.copy()   # distance to the nearest waypoint so far
     legs = []
-    for _ in range(max(cfg.waypoints, 2) - 1):
+    for _ in range(cfg.waypoints - 1):
         nxt = farthest(nearest)
         leg = [nxt]
         while leg[-1] != stops[-1]:

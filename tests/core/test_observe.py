@@ -57,3 +57,28 @@ def test_trajectory_seeded(scene):
     a = make_trajectory(scene, np.random.default_rng(5))[1]
     b = make_trajectory(scene, np.random.default_rng(5))[1]
     np.testing.assert_array_equal(a, b)
+
+
+def test_a_start_off_the_walkable_floor_is_refused_not_moved():
+    """Two rooms split by a wall with one closed door: walks keep to the larger room, and a
+    start asked for in the other is refused with the nearest walkable point, not quietly
+    moved there."""
+    from sgreg_core.simulation.observe import TrajectoryConfig, walkable_share
+
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(0, 8, 40000), rng.uniform(0, 4, 40000), np.zeros(40000)]
+    z = np.linspace(0.0, 2.0, 21)
+    wall_y = np.linspace(0, 4, 81)
+    wall = np.array([(5.0, y, h) for y in wall_y for h in z])        # x = 5: the closed door too
+    outer = np.array([(x, y, h) for x in np.linspace(0, 8, 161) for y in (0.0, 4.0) for h in z]
+                     + [(x, y, h) for x in (0.0, 8.0) for y in wall_y for h in z])
+    pts = np.vstack([floor, wall, outer]).astype(np.float32)
+    m = InstanceMap(points=pts, instance=np.ones(len(pts), np.int32), labels={1: "x"})
+    cfg = TrajectoryConfig(clearance=0.15)
+    assert 0.55 < walkable_share(m, cfg) < 0.7          # the 5 m room of 5 + 3 m
+    times, poses = make_trajectory(m, rng, TrajectoryConfig(clearance=0.15, start=(2.0, 2.0)))
+    assert np.all(poses[:, 0] < 5.0)
+    with pytest.raises(ValueError, match=r"start \(6.5, 2\) lies 1\.\d m from the walkable floor.*nearest walkable point is \(4\.\d\d, "):
+        make_trajectory(m, rng, TrajectoryConfig(clearance=0.15, start=(6.5, 2.0)))
+    with pytest.raises(ValueError, match="waypoints must be at least 2"):
+        make_trajectory(m, rng, TrajectoryConfig(waypoints=1))

@@ -3,8 +3,10 @@
 Public API:
     Wall, Room                  geometry of one room (interior rectangle, four walls)
     partition(n_rooms, kind, rng) -> list[Room]      BSP split of an apartment / office footprint
-    add_openings(rooms, rng)    doors between adjacent rooms (a spanning tree, so every room is
-                                reachable), one entrance door, windows on exterior walls
+    add_openings(rooms, rng)    doors between adjacent rooms (a spanning tree: every room has
+                                a way in, though scene.py leaves half the doors closed, and a
+                                walking agent passes no closed door), one entrance door,
+                                windows on exterior walls
     building(n_rooms, rng) -> (rooms, templates)   a floor: rooms on both sides of a corridor
                                 (rooms[0]), each with its door on the corridor and windows
                                 outside; rooms of one run share a template (same size, same
