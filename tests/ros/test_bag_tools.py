@@ -103,38 +103,34 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
         assert all(a == b for a, b in zip(received[-len(messages):], messages)), topic
 
 
+def _play_stopped(src, sig, after: float, delay: str = "0"):
+    """(exit code, stdout, stderr) of `sgreg play` sent `sig` `after` seconds into playing."""
+    import time
+
+    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", delay], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert play.stderr.readline().startswith("sgreg play: playing")    # rclpy's handlers are in
+    time.sleep(after)
+    play.send_signal(sig)
+    out, err = play.communicate(timeout=20)
+    assert "Traceback" not in err, err
+    return play.returncode, out, err
+
+
 def test_play_ends_cleanly_on_sigterm(tmp_path):
     import signal
-    import time
 
     src = tmp_path / "long"
     write_bag(src, n=300)           # 30 s of messages
-    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "0"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    assert play.stderr.readline().startswith("sgreg play: playing")    # rclpy's handlers are in
-    time.sleep(2.0)
-    play.send_signal(signal.SIGTERM)
-    out, err = play.communicate(timeout=20)
-    assert play.returncode == 0, err
-    assert "Traceback" not in err, err
+    code, out, err = _play_stopped(src, signal.SIGTERM, 2.0)
+    assert code == 0, err
     assert out.startswith("stopped by shutdown: played "), out     # what was played is said
     # Ctrl-C: the same summary, and the shell's code for it
-    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "0"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    assert play.stderr.readline().startswith("sgreg play: playing")
-    time.sleep(2.0)
-    play.send_signal(signal.SIGINT)
-    out, err = play.communicate(timeout=20)
-    assert play.returncode == 130 and out.startswith("stopped by Ctrl-C: played "), (out, err)
-    assert "Traceback" not in err, err
+    code, out, err = _play_stopped(src, signal.SIGINT, 2.0)
+    assert code == 130 and out.startswith("stopped by Ctrl-C: played "), (out, err)
     # Ctrl-C while play still waits for its start (--delay): the same, with nothing played
-    play = subprocess.Popen(SGREG + ["play", str(src), "--delay", "30"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    assert play.stderr.readline().startswith("sgreg play: playing")
-    time.sleep(1.0)
-    play.send_signal(signal.SIGINT)
-    out, err = play.communicate(timeout=20)
-    assert play.returncode == 130 and out.startswith("stopped by Ctrl-C: played 0 messages"), (out, err)
+    code, out, err = _play_stopped(src, signal.SIGINT, 1.0, delay="30")
+    assert code == 130 and out.startswith("stopped by Ctrl-C: played 0 messages"), (out, err)
 
 
 def test_corrupted_message_is_reported_and_the_rest_plays(tmp_path):
