@@ -233,6 +233,12 @@ def _write_bag(out: Path, spec: BagSpec, sim, T_level, T_b_capture, log) -> dict
 
     T = sim.T_a_b
     store = typestore()
+
+    def cdr(msg, msgtype: str) -> bytes:
+        # through rosbags, which zero-fills CDR padding (rclpy leaves it uninitialised): the
+        # same command makes the same bytes
+        return bytes(store.serialize_cdr(store.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
+
     events = [(t, agent.name, m) for agent in sim.agents for t, m in agent.snapshots]
     events.sort(key=lambda e: (e[0], e[1]))
     seq = {agent.name: 0 for agent in sim.agents}
@@ -249,9 +255,9 @@ def _write_bag(out: Path, spec: BagSpec, sim, T_level, T_b_capture, log) -> dict
             stamp_ns = int(T_ORIGIN) * 1_000_000_000 + seconds_to_ns(t)   # exact: no epoch in a float
             msg = instance_map_to_msg(imap, name, seq[name], stamp_ns)
             seq[name] += 1
-            w.write(conns[name], stamp_ns, serialize_message(msg))
+            w.write(conns[name], stamp_ns, cdr(msg, "sgreg_msgs/msg/InstanceMap"))
             if name == "a":
-                w.write(gt, stamp_ns + 1, serialize_message(transform_msg(T, "a", "b", stamp_ns)))
+                w.write(gt, stamp_ns + 1, cdr(transform_msg(T, "a", "b", stamp_ns), "geometry_msgs/msg/TransformStamped"))
             if i % 10 == 0 or i == len(events) - 1:
                 log(f"  writing: {i + 1}/{len(events)} messages")
     seal_chunks(out)

@@ -53,6 +53,13 @@ def test_make_bag_from_a_synthetic_scene(tmp_path):
     # mcap-ros2 reads the same file from its own stored schemas
     n = sum(1 for _ in read_ros2_messages(str(next(bag.glob("*.mcap")))))
     assert n == sum(len(v) for v in maps.values()) + len(maps["a"])
+    # the same command makes the same bytes (rclpy's CDR padding was left uninitialised)
+    again = tmp_path / "again" / "bag"      # the bag's name is in its MCAP
+    out = subprocess.run(SGREG + ["make-bag", str(scene), "--out", str(again), "--seed", "2"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    [first], [second] = bag.glob("*.mcap"), again.glob("*.mcap")
+    assert first.read_bytes() == second.read_bytes()
 
 
 def test_make_bag_refuses_bad_input(tmp_path):
