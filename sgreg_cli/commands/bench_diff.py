@@ -37,7 +37,7 @@ def render(c, before: str, after: str) -> list[str]:
         lines.append(f"{'bag':{width}s}  verified / registrable   wrong verified")
         for name, (b, a) in c.changed.items():
             lines.append(f"{name:{width}s}  {b.verified:4d}/{b.registrable:<4d} -> {a.verified:4d}/{a.registrable:<4d}"
-                         f"   {b.wrong} -> {a.wrong}{'   NEW WRONG' if a.wrong and not b.wrong else ''}")
+                         f"   {b.wrong} -> {a.wrong}{'   NEW WRONG' if name in c.new_wrong else ''}")
     lines.append(f"{c.common} bags in both, {len(c.changed)} changed")
     for side, names in (("before", c.only_before), ("after", c.only_after)):
         if names:
@@ -78,5 +78,4 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(render(c, args.before, args.after)))
     if args.json:
         Path(args.json).write_text(json.dumps(as_json(c), indent=1))
-    new_wrong = [n for n, (b, a) in c.changed.items() if a.wrong and not b.wrong]
-    return 1 if args.fail_on_new_wrong and new_wrong else 0
+    return 1 if args.fail_on_new_wrong and c.new_wrong else 0

@@ -35,7 +35,8 @@ class Comparison:
     """changed: bag -> (before, after) for the bags both ran whose outcome differs; only_before /
     only_after: bags one run has and the other lacks (left out of the totals); totals: the sums
     over the bags both ran; missed: (category, reason) -> registrable frames not verified;
-    context: what was run (CONTEXT_KEYS) where the two differ -> (before, after)."""
+    context: what was run (CONTEXT_KEYS) where the two differ -> (before, after); new_wrong:
+    the bags that gained wrong verified frames."""
 
     common: int
     changed: dict[str, tuple[BagOutcome, BagOutcome]]
@@ -45,6 +46,11 @@ class Comparison:
     bags_with_wrong: tuple[int, int]
     missed: tuple[Counter, Counter]
     context: dict[str, tuple] = field(default_factory=dict)
+
+    @property
+    def new_wrong(self) -> list[str]:
+        """Bags with wrong verified frames after and none before: what breaks the rule."""
+        return [name for name, (b, a) in self.changed.items() if a.wrong and not b.wrong]
 
 
 def load_run(folder: str | Path) -> dict:

@@ -33,7 +33,7 @@ def test_bags_that_moved_and_the_totals_over_the_bags_both_ran():
                          "y": (BagOutcome(3, 4, 0), BagOutcome(3, 4, 2))}
     assert c.only_before == ["gone"] and c.only_after == ["new"]
     assert c.totals == (BagOutcome(12, 14, 0), BagOutcome(13, 14, 2))     # "gone" and "new" left out
-    assert c.bags_with_wrong == (0, 1)
+    assert c.bags_with_wrong == (0, 1) and c.new_wrong == ["y"]
     assert c.missed[0][("right_refused", "low_confidence")] == 1 and not c.missed[1]
     assert c.context == {"overrides": (None, ["peers.confirm=false"])}
 
