@@ -5,7 +5,7 @@ build and inspect them without knowing anything about how they are computed.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -77,3 +77,15 @@ class SceneGraph:
     @property
     def num_edges(self) -> int:
         return int(self.edges.shape[0])
+
+    def reordered(self, perm: np.ndarray) -> "SceneGraph":
+        """The same graph with its nodes listed in another order: new row r is old node perm[r]
+        (edges renumbered, still i < j and sorted)."""
+        perm = np.asarray(perm, np.int64)
+        edges = np.sort(np.argsort(perm)[self.edges], axis=1) if len(self.edges) else self.edges
+        if len(edges):
+            edges = edges[np.lexsort((edges[:, 1], edges[:, 0]))]
+        return replace(self, node_ids=self.node_ids[perm], labels=[self.labels[i] for i in perm],
+                       scores=self.scores[perm], centers=self.centers[perm],
+                       extents=self.extents[perm], points=[self.points[i] for i in perm],
+                       edges=edges, structural=self.structural[perm])

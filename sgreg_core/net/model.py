@@ -221,15 +221,23 @@ class SGRegModel(nn.Module):
     @torch.no_grad()
     def encode(self, graph: SceneGraph, dense: bool = True,
                timings: dict | None = None) -> NodeFeatures:
-        """Features of a graph for coarse (x, centers) or dense (+ points, z) matching."""
+        """Features of a graph for coarse (x, centers) or dense (+ points, z) matching, in the
+        graph's node order. The network runs on the nodes in ascending id order (the order
+        build_scene_graph lists them in), because its point samples and triplets are drawn row
+        by row: a graph that lists the same nodes in another order gets the same features."""
         if self.training:
             raise RuntimeError("encode() needs eval mode (call model.eval())")
-        inp = self.prepare(graph, timings=timings)
+        ids = np.asarray(graph.node_ids, dtype=np.int64)
+        order = np.argsort(ids, kind="stable")
+        canonical = np.array_equal(order, np.arange(len(ids)))
+        inp = self.prepare(graph if canonical else graph.reordered(order), timings=timings)
         out = self(inp, timings=timings)
-        feats = NodeFeatures(node_ids=np.asarray(graph.node_ids, dtype=np.int64),
-                             centers=inp.centers.numpy(), descriptor=out.descriptor.numpy())
+        back = slice(None) if canonical else np.argsort(order)
+        feats = NodeFeatures(node_ids=ids, centers=np.asarray(graph.centers, np.float32).reshape(-1, 3),
+                             descriptor=out.descriptor.numpy()[back])
         if dense:
-            feats.points, feats.valid, feats.z = inp.points.numpy(), inp.valid.numpy(), out.z.numpy()
+            feats.points, feats.valid = inp.points.numpy()[back], inp.valid.numpy()[back]
+            feats.z = out.z.numpy()[back]
         return feats
 
     @torch.no_grad()

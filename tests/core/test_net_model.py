@@ -60,6 +60,19 @@ def test_encode_is_deterministic_and_4dof_invariant(text):
     np.testing.assert_allclose(a.points[a.valid] @ T[:3, :3].T + T[:3, 3], c.points[c.valid], atol=1e-4)
 
 
+def test_encode_does_not_depend_on_the_node_order(text):
+    """A graph that lists its nodes in another order (one not built by build_scene_graph) gives
+    each node the same features."""
+    model = _model(text)
+    graph = toy_graph(np.random.default_rng(5), n=30, edge_radius=4.0)
+    assert np.bincount(graph.edges.ravel()).max() >= 7  # anchors with more pairs than triplets
+    perm = np.random.default_rng(6).permutation(30)
+    a, b = model.encode(graph), model.encode(graph.reordered(perm))
+    np.testing.assert_allclose(a.descriptor[perm], b.descriptor, atol=1e-5)
+    np.testing.assert_allclose(a.z[perm], b.z, atol=1e-5)
+    assert np.array_equal(a.points[perm], b.points) and np.array_equal(a.node_ids[perm], b.node_ids)
+
+
 def test_point_features_from_a_dense_message_equal_encode(text):
     """A peer recomputes Z from points, centers and descriptors: same as the sender's."""
     model = _model(text)

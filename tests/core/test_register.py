@@ -16,7 +16,7 @@ from sgreg_core.metrics import registration_rmse
 from sgreg_core.net.model import load_model
 from sgreg_core.net.testing import toy_graph
 from sgreg_core.simulation.pairs import PairConfig, make_pair
-from sgreg_core.pipeline import PipelineConfig, register_graphs
+from sgreg_core.pipeline import PipelineConfig, build_graphs, register_graphs
 from sgreg_core.simulation.synth import SynthConfig, generate_scene
 
 RESULT_KEYS = {"T": list, "success": bool, "node_matches": int, "inliers": int,
@@ -261,6 +261,21 @@ def test_a_failed_picture_keeps_the_result(data, tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert code == 2 and res["success"] and err.startswith("sgreg register: cannot draw ")
     assert err.count("\n") == 1
+
+
+def test_the_result_does_not_depend_on_the_order_the_maps_list_their_nodes(data):
+    """Two robots that list the same maps' nodes in other orders get the same answer."""
+    _, pair = data
+    cfg = PipelineConfig()
+    src, ref = build_graphs(pair.src, pair.ref, cfg, {})
+    model = load_model()
+    first = register_graphs(model, src, ref, cfg)
+    rng = np.random.default_rng(3)
+    again = register_graphs(model, src.reordered(rng.permutation(src.num_nodes)),
+                            ref.reordered(rng.permutation(ref.num_nodes)), cfg)
+    assert first.success and (again.reason, again.inliers) == (first.reason, first.inliers)
+    np.testing.assert_allclose(again.T, first.T, atol=1e-5)
+    assert again.confidence == pytest.approx(first.confidence, abs=1e-6)
 
 
 def test_tiny_graphs_are_refused_without_matching():
