@@ -32,7 +32,11 @@ from sgreg_ros.signing import MessageAuth
 from . import processes
 from .bags import BagError, message_class, open_bag, play_bag, qos_for
 
-CROSS_AGENT = ("/sgreg/coarse", "/sgreg/dense", "/sgreg/dense_request")
+# what one agent sends the others (metered: kB per query frame); the results are heard by
+# every peer's registration node (witnesses, merging)
+CROSS_AGENT = {"/sgreg/coarse": "sgreg_msgs/msg/CoarseGraph", "/sgreg/dense": "sgreg_msgs/msg/DenseGraph",
+               "/sgreg/dense_request": "sgreg_msgs/msg/DenseRequest",
+               "/sgreg/registration": "sgreg_msgs/msg/RegistrationResult"}
 
 
 @dataclass
@@ -78,6 +82,10 @@ class ReplayRun:
     # topics not from the replay's nodes, left out (unsigned, unknown_key, ...), and other
     # publishers of the agents' maps
     foreign: dict = field(default_factory=dict)
+
+    def merged_poses(self, merged_frame: str) -> dict:
+        """agent -> its map's last pose in the merged frame, as /tf carried it."""
+        return {child.split("/")[0]: T for child, (parent, T) in self.tf.items() if parent == merged_frame}
 
 
 class FleetCheck:
@@ -271,12 +279,10 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
     for name in names:
         node.create_subscription(RegistrationResult, f"/{name}/sgreg/registration",
                                  lambda msg, agent=name: on_result(msg, agent), RESULTS)
-        for suffix in CROSS_AGENT:
+        for suffix, kind in CROSS_AGENT.items():
             topic = f"/{name}{suffix}"
-            cls = message_class({"/sgreg/coarse": "sgreg_msgs/msg/CoarseGraph",
-                                 "/sgreg/dense": "sgreg_msgs/msg/DenseGraph",
-                                 "/sgreg/dense_request": "sgreg_msgs/msg/DenseRequest"}[suffix])
-            node.create_subscription(cls, topic, lambda raw, t=topic: on_bytes(t, raw), qos_for(topic), raw=True)
+            node.create_subscription(message_class(kind), topic, lambda raw, t=topic: on_bytes(t, raw),
+                                     qos_for(topic), raw=True)
 
     player = rclpy.create_node("sgreg_replay_player")
     play_result = {}

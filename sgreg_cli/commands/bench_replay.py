@@ -50,14 +50,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _bag_digest(path: Path) -> str:
-    """sha256 over a bag's ground truth and rosbag2 metadata (message counts, sizes, duration):
-    a bag re-made or re-recorded under the same name is not taken for the one a result was
-    cached from."""
+    """sha256 over every file of a bag (ground truth, rosbag2 metadata, the messages): a bag
+    re-made or re-recorded under the same name is not taken for the one a result was cached
+    from (a few seconds over a suite's bags)."""
     h = hashlib.sha256()
-    for name in ("ground_truth.json", "metadata.yaml"):
-        f = Path(path) / name
-        h.update(name.encode())
-        h.update(f.read_bytes() if f.is_file() else b"")
+    for f in sorted(p for p in Path(path).iterdir() if p.is_file()):
+        h.update(f.name.encode())
+        with open(f, "rb") as stream:
+            for block in iter(lambda: stream.read(1 << 20), b""):
+                h.update(block)
     return h.hexdigest()[:16]
 
 
@@ -197,9 +198,12 @@ def _replay(job, gt: dict, backend: str, args, model, out_dir: Path, params: byt
                        log_dir=out_dir / "logs" / job.name)
     run_ = run_replay(job.path, cfg, log=lambda s: None)
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
+    # the final poses scored are those /tf carried, as `sgreg replay` scores them
+    tf_poses = run_.merged_poses(merge_cfg.merged_frame)
+    merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None, cfg=merge_cfg)[1]
+    merge["published_on_tf"] = bool(tf_poses)
     return replay_report(job.path, score, run_, {"backend": "ros", "params_file": args.params_file,
-                                                 "overrides": cfg.overrides},
-                         merge=merge_report(run_.records, gt["T_scene_map"], cfg=merge_cfg)[1])
+                                                 "overrides": cfg.overrides}, merge=merge)
 
 
 def run(args: argparse.Namespace) -> int:

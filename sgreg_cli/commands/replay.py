@@ -106,7 +106,7 @@ def run(args) -> int:
         print(f"sgreg replay: {exc}{where}", file=sys.stderr)
         return 2
     score = score_replay(run_.records, gt["T_scene_map"], gt.get("objects"))
-    tf_poses = {child.split("/")[0]: T for child, (parent, T) in run_.tf.items() if parent == merge_cfg.merged_frame}
+    tf_poses = run_.merged_poses(merge_cfg.merged_frame)
     merged, merge = merge_report(run_.records, gt["T_scene_map"], tf_poses or None, cfg=merge_cfg)
     merge["published_on_tf"] = bool(tf_poses)
     report = replay_report(args.bag, score, run_, {"rate": cfg.rate, "tail_s": cfg.tail_s,

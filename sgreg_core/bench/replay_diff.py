@@ -23,11 +23,18 @@ CONTEXT_KEYS = ("backend", "weights_id", "model_config", "source", "params", "ov
 
 @dataclass(frozen=True)
 class BagOutcome:
-    """verified: registrable frames verified (and right); wrong: wrong verified frames (any)."""
+    """verified: registrable frames verified (and right); wrong: wrong verified frames (any);
+    merged_wrong_s: seconds the merged frame (/tf) held a wrong link or misplaced an agent."""
 
     verified: int
     registrable: int
     wrong: int
+    merged_wrong_s: float = 0.0
+
+    @property
+    def broke_rule(self) -> bool:
+        """Something wrong was published as good: a verified frame, or the merged frame."""
+        return self.wrong > 0 or self.merged_wrong_s > 0
 
 
 @dataclass
@@ -36,21 +43,21 @@ class Comparison:
     only_after: bags one run has and the other lacks (left out of the totals); totals: the sums
     over the bags both ran; missed: (category, reason) -> registrable frames not verified;
     context: what was run (CONTEXT_KEYS) where the two differ -> (before, after); new_wrong:
-    the bags that gained wrong verified frames."""
+    the bags that published something wrong (BagOutcome.broke_rule) and did not before."""
 
     common: int
     changed: dict[str, tuple[BagOutcome, BagOutcome]]
     only_before: list[str]
     only_after: list[str]
     totals: tuple[BagOutcome, BagOutcome]
-    bags_with_wrong: tuple[int, int]
+    bags_with_wrong: tuple[int, int]     # bags that broke the rule (BagOutcome.broke_rule)
     missed: tuple[Counter, Counter]
     context: dict[str, tuple] = field(default_factory=dict)
 
     @property
     def new_wrong(self) -> list[str]:
-        """Bags with wrong verified frames after and none before: what breaks the rule."""
-        return [name for name, (b, a) in self.changed.items() if a.wrong and not b.wrong]
+        """Bags that broke the rule after and did not before."""
+        return [name for name, (b, a) in self.changed.items() if a.broke_rule and not b.broke_rule]
 
 
 def load_run(folder: str | Path) -> dict:
@@ -74,7 +81,8 @@ def _outcome(row: dict) -> BagOutcome:
     registrable = int(row.get("registrable_frames") or 0)
     rate = row.get("success_rate_registrable")
     verified = int(round((rate or 0.0) * registrable))
-    return BagOutcome(verified, registrable, int(row.get("wrong_verified") or 0))
+    return BagOutcome(verified, registrable, int(row.get("wrong_verified") or 0),
+                      float(row.get("merged_wrong_s") or 0.0))
 
 
 def _missed(rows: list[dict]) -> Counter:
@@ -88,7 +96,7 @@ def _missed(rows: list[dict]) -> Counter:
 
 def _sum(outcomes: list[BagOutcome]) -> BagOutcome:
     return BagOutcome(sum(o.verified for o in outcomes), sum(o.registrable for o in outcomes),
-                      sum(o.wrong for o in outcomes))
+                      sum(o.wrong for o in outcomes), sum(o.merged_wrong_s for o in outcomes))
 
 
 def compare(before: dict, after: dict) -> Comparison:
@@ -107,7 +115,7 @@ def compare(before: dict, after: dict) -> Comparison:
         only_before=sorted(set(b_bags) - set(a_bags)),
         only_after=sorted(set(a_bags) - set(b_bags)),
         totals=(_sum([p[0] for p in pairs.values()]), _sum([p[1] for p in pairs.values()])),
-        bags_with_wrong=(sum(p[0].wrong > 0 for p in pairs.values()),
-                         sum(p[1].wrong > 0 for p in pairs.values())),
+        bags_with_wrong=(sum(p[0].broke_rule for p in pairs.values()),
+                         sum(p[1].broke_rule for p in pairs.values())),
         missed=(_missed([b_bags[n] for n in common]), _missed([a_bags[n] for n in common])),
         context={k: (b_ctx.get(k), a_ctx.get(k)) for k in CONTEXT_KEYS if b_ctx.get(k) != a_ctx.get(k)})

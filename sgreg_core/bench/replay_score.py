@@ -8,7 +8,9 @@ criterion, verified or not, which is the paper's definition. A frame is *registr
 ground truth, both maps already hold at least `min_shared_objects` common objects at the bag
 time of the frame (bags from `sgreg make-bag` list the objects of every snapshot); before that
 no method can be asked to succeed. Times to first success are per directed link (agent ->
-peer), from the link's first registrable frame.
+peer), from the bag time at which both maps first hold `min_shared_objects` common objects by
+ground truth (not from the link's first registrable result: a link that publishes nothing for a
+while is charged for it).
 """
 from __future__ import annotations
 
@@ -170,16 +172,16 @@ def score_replay(records: list[ResultRecord], T_scene_map: dict, objects: dict |
         # every directed link of the bag's agents, the silent ones too: a link that published
         # nothing while its maps could be registered is one never registered, not one left out
         agents = sorted(str(a) for a in T_scene_map)
+        # the replay's last result (any link): a link that fell silent before it is charged
+        end = max((f.bag_t for f in frames if f.bag_t is not None), default=None)
         for agent, peer in sorted({(a, p) for a in agents for p in agents if a != p}
                                   | {(f.agent, f.peer) for f in frames}):
             fs = [f for f in frames if (f.agent, f.peer) == (agent, peer)]
             first_reg = next((f.t for f in fs if f.registrable), None)
             first_ok = next((f for f in fs if f.success), None)
             since = registrable_since(objects, agent, peer, min_shared_objects)
-            if since is not None and fs and fs[-1].bag_t is not None and since > fs[-1].bag_t:
-                since = None      # registrable only after the link's last result: not asked
-            # counted from when the maps could first be registered, not from the link's first
-            # registrable frame: a link that publishes nothing for a while is charged for it
+            if since is not None and (end is None or since > end):
+                since = None      # registrable only after the replay's last result: not asked
             delay = None
             if since is not None and first_ok is not None and first_ok.bag_t is not None:
                 delay = max(first_ok.bag_t - since, 0.0)

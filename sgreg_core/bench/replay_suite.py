@@ -335,8 +335,8 @@ def _row(results: list[dict]) -> dict:
         "links_never_registered": int(sum(link["time_to_success_s"] is None for link in reg_links)),
         "kb_per_query_frame": (sum(sum(r["bytes_per_topic"].values()) for r in metered) / 1e3 / metered_frames
                                if metered_frames else None),
-        "coarse_latency_ms": _median(r["coarse_latency_ms"]["median"] for r in results),
-        "dense_latency_ms": _median(r["dense_latency_ms"]["median"] for r in results),
+        "coarse_latency_ms": _median(f.get("total_ms") for f in frames if f.get("mode") in ("coarse", "merged")),
+        "dense_latency_ms": _median(f.get("total_ms") for f in frames if f.get("mode") == "dense"),
         "dense_requests": _requests(results),
         "missed": missed(frames),
     }

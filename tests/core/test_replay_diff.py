@@ -38,6 +38,14 @@ def test_bags_that_moved_and_the_totals_over_the_bags_both_ran():
     assert c.context == {"overrides": (None, ["peers.confirm=false"])}
 
 
+def test_a_wrong_merged_frame_breaks_the_rule_like_a_wrong_verified_frame():
+    """A link kept in the merge but not verified can still put a map in the wrong place on /tf."""
+    merged = {**bag(3, 4), "merged_wrong_s": 5.0}
+    c = compare(run_of({"y": bag(3, 4)}), run_of({"y": merged}))
+    assert c.new_wrong == ["y"] and c.bags_with_wrong == (0, 1)
+    assert c.totals[1] == BagOutcome(3, 4, 0, 5.0)
+
+
 def test_runs_of_two_suites_or_of_no_common_bag_are_refused():
     with pytest.raises(ValueError, match="two suites"):
         compare(BEFORE, {**AFTER, "suite": "other"})
@@ -64,10 +72,10 @@ def test_the_command_prints_the_change_and_fails_on_a_new_wrong_frame_when_asked
     res = subprocess.run(args + ["--json", str(tmp_path / "d.json")], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "85.7 % (12 of 14) -> 92.9 % (13 of 14)" in res.stdout
-    assert "y" in res.stdout and "0 -> 2   NEW WRONG" in res.stdout and "only in before" in res.stdout
+    assert "y" in res.stdout and "0 -> 2   0 s -> 0 s   NEW WRONG" in res.stdout and "only in before" in res.stdout
     assert "right_refused / low_confidence: 1 -> 0" in res.stdout
     d = json.loads((tmp_path / "d.json").read_text())
-    assert d["totals"]["after"] == {"verified": 13, "registrable": 14, "wrong_verified": 2}
+    assert d["totals"]["after"] == {"verified": 13, "registrable": 14, "wrong_verified": 2, "merged_wrong_s": 0.0}
     assert subprocess.run(args + ["--fail-on-new-wrong"], capture_output=True, timeout=60).returncode == 1
     swapped = subprocess.run(SGREG + ["bench-diff", str(tmp_path / "after"), str(tmp_path / "before"),
                                       "--fail-on-new-wrong"], capture_output=True, timeout=60)

@@ -87,6 +87,14 @@ def test_a_link_that_never_published_counts_as_never_registered():
     report = {"frames": [vars(f) for f in s.frames], "links": s.links, "wrong_verified": 0,
               "coarse_latency_ms": s.coarse_latency_ms, "dense_latency_ms": s.dense_latency_ms}
     assert _row([report])["links_never_registered"] == 1
+    # a link that published before the maps could be registered and then fell silent is
+    # charged too: registrable while the replay went on (a's results), it never answered
+    early = [rec(1.0, "b", "a", invert_transform(gt), False)] + records
+    for r in early:
+        r.bag_t = r.t
+    quiet = score_replay(early, FRAMES, objects).links["b->a"]
+    assert quiet["results"] == 1 and quiet["registrable_since_bag_s"] == 4.0
+    assert quiet["time_to_success_s"] is None
     # maps that never share enough objects ask nothing of either link
     apart = {"a": [[0.0, [1, 2]]], "b": [[0.0, [7, 8]]]}
     assert score_replay(records, FRAMES, apart).links["b->a"]["registrable_since_bag_s"] is None

@@ -168,6 +168,17 @@ def test_summary_pools_frames_and_reports_held_out_rooms_apart(tmp_path):
                                           "right_held": {}}
 
 
+def test_latencies_are_medians_of_the_pooled_frames_not_of_each_bags_median():
+    from sgreg_core.bench.replay_suite import _row
+
+    def timed(mode, ms):
+        return {**frame(True, True, True, 0.9), "mode": mode, "total_ms": ms}
+    busy = report([timed("coarse", 10.0)] * 3 + [timed("dense", 60.0)] * 3, 0, {})
+    slow = report([timed("merged", 100.0), timed("dense", 300.0)], 0, {})
+    row = _row([busy, slow])
+    assert row["coarse_latency_ms"] == 10.0 and row["dense_latency_ms"] == 60.0
+
+
 def test_kb_per_frame_is_the_bytes_of_every_bag_over_its_frames():
     """Not a median of per-bag ratios: a short bag's heavy frames weigh as many frames as it has;
     bags replayed without metering (offline) are left out."""
@@ -289,3 +300,18 @@ def test_other_walk_seeds_make_other_bags_of_the_same_scans(tmp_path):
     suite = load_suite(path, seeds=[7])
     assert len(suite.jobs) == 3 * 2 and {j.seed for j in suite.jobs} == {7}    # no shipped bag
     assert all(j.name.endswith("_s7") and j.spec["seed"] == 7 for j in suite.jobs)
+
+
+def test_a_bag_rerecorded_under_the_same_name_is_not_taken_for_the_cached_one(tmp_path):
+    """The cache key's bag digest covers the messages, not only the ground truth and counts."""
+    from sgreg_cli.commands.bench_replay import _bag_digest
+
+    for name, data in (("ground_truth.json", b"{}"), ("metadata.yaml", b"count: 3"),
+                       ("b.mcap", bytes(range(256)) * 64)):
+        (tmp_path / name).write_bytes(data)
+    before = _bag_digest(tmp_path)
+    assert _bag_digest(tmp_path) == before
+    with open(tmp_path / "b.mcap", "r+b") as f:
+        f.seek(1000)
+        f.write(b"\xff" * 8)
+    assert _bag_digest(tmp_path) != before
