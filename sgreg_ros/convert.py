@@ -367,6 +367,7 @@ class Result:
     stamp_ns: int
     node_pairs: np.ndarray   # (k, 2) (agent node id, peer node id)
     mode: str = ""           # "coarse", "dense" or "merged"
+    signed_ns: int = 0       # when its sender signed it (wall clock, ns; 0: unsigned)
 
 
 @decoder
@@ -395,7 +396,7 @@ def result_from_msg(msg: RegistrationResult) -> Result:
         raise ConversionError("inlier_node_pairs holds an odd number of ids")
     return Result(msg.agent_id, msg.peer_id, T, bool(msg.verified), msg.reason, msg.link,
                   float(np.clip(msg.confidence, 0.0, 1.0)), stamp_to_ns(msg.header.stamp),
-                  pairs.reshape(-1, 2), msg.mode)
+                  pairs.reshape(-1, 2), msg.mode, int(msg.signed_ns))
 
 
 def diagnostics_msg(name: str, agent_id: str, level: int, message: str, counters: dict,

@@ -252,7 +252,8 @@ class RegistrationNode(SgregNode):
                          result.link, result.confidence, result.stamp_ns)
         if result.peer == self.name:     # the peer's own estimate of our link: a witness
             if self.peers.on_peer_result(result.agent, result.T, result.verified, result.mode,
-                                         result.reason, result.link, self.clock_s()):
+                                         result.reason, result.link, self.clock_s(),
+                                         age_s=self.auth.said_s_ago(result.signed_ns)):
                 # our link, confirmed on its word, is withdrawn: out of the merge and the views
                 # now (the other agents' mergers drop it with our next result about that peer)
                 self.merger.drop(self.name, result.agent)

@@ -28,6 +28,7 @@ class MessageAuth:
         self.cfg = cfg
         self.keystore, self._key = None, None
         self._newest: dict[tuple, int] = {}   # (topic, key) -> signing time of the last message taken
+        self._started_ns = time.time_ns()
         if not cfg.keystore:
             logger.warning(UNAUTHENTICATED)
             return
@@ -51,6 +52,16 @@ class MessageAuth:
             msg.key_id, msg.signed_ns, msg.signature = self.key_id, time.time_ns(), b""
             msg.signature = sign(self._key, self._payload(msg, topic))
         return msg
+
+    def said_s_ago(self, signed_ns: int) -> float:
+        """How long ago a checked message was signed (0 without a keystore, where nothing is
+        signed); inf when it was signed before this node started: a message captured before a
+        restart, whose replay the record of the newest one seen (lost with it) cannot catch."""
+        if self.keystore is None:
+            return 0.0
+        if signed_ns < self._started_ns:
+            return float("inf")
+        return max(time.time_ns() - signed_ns, 0) / 1e9
 
     def check(self, msg, topic: str, agent: str) -> str | None:
         """Why a message on `topic` that claims to come from `agent` is refused, or None."""

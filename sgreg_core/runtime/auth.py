@@ -54,6 +54,13 @@ class Keystore:
         self._sign: dict[str, SigningKey] = {}
         path = self.root
         try:
+            # as ssh's StrictModes: whoever may write a public key may speak for its agent
+            for path in (self.root, self.root / "public", self.root / "private",
+                         *sorted((self.root / "public").glob("*.pub"))):
+                if path.exists() and path.stat().st_mode & 0o022:
+                    mode = path.stat().st_mode & 0o777
+                    raise KeystoreError(f"keystore {self.root}: {path} can be written by other "
+                                        f"users (mode {mode:o}); chmod go-w {path}")
             for path in sorted((self.root / "public").glob("*.pub")):
                 vk = VerifyKey(bytes.fromhex(path.read_text().strip()))
                 kid = key_id(bytes(vk))
@@ -67,6 +74,8 @@ class Keystore:
                     raise KeystoreError(f"keystore {self.root}: private/{path.name} can be read by other "
                                         f"users (mode {mode:o}); chmod 600 {path}")
                 self._sign[path.stem] = SigningKey(bytes.fromhex(path.read_text().strip()))
+        except KeystoreError:
+            raise
         except (OSError, ValueError) as exc:
             # the file it failed on, so that the fix is one line
             where = "" if path == self.root else f"{path.relative_to(self.root)}: "

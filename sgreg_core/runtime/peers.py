@@ -127,7 +127,8 @@ class PeersConfig:
     confirm_with_peer: the peer's own estimates of the link count as the other data for a
         confirmation (Peers._witnessed): its confirmed link for any estimate, its dense
         estimates that passed its verdict for a dense one.
-    witness_max_age_s: a peer's estimate older than this no longer confirms anything.
+    witness_max_age_s: a peer's estimate older than this no longer confirms anything (its age
+        counted from when the peer signed it, with a keystore; from its arrival without).
     vouched_min_confidence: the confidence an estimate needs, instead of the verdict's
         min_confidence, when the peer's confirmed link (a witness, as above) agrees with it and
         only its confidence fell short (Peers._vouched). The verdict's confidence is P(right)
@@ -393,15 +394,18 @@ class Peers:
         return self._estimate_coarse(link, now)
 
     def on_peer_result(self, peer: str, T_peer_agent: np.ndarray, verified: bool, mode: str,
-                       reason: str, link_state: str, now: float) -> bool:
+                       reason: str, link_state: str, now: float, age_s: float = 0.0) -> bool:
         """A peer's own estimate of its link to this agent (its RegistrationResult naming this
         agent), kept as a witness (see _witnessed) when the peer published it as verified, or
         when it is a dense estimate that passed the peer's verdict. It may be heard before the
         peer's first graph. A candidate it confirms is confirmed at once. A result that says
         the peer's link is no longer confirmed, or that its cycles dispute it, takes its
         confirmed link back as a witness; a contradicted one takes back every witness, and the
-        confirmation of a link that rested on them. True when that withdrew the link to the
-        peer: the caller takes it out of its merge (no estimate says so before the next one)."""
+        confirmation of a link that rested on them, and a dense result that did not pass takes
+        back the peer's passing dense one. age_s: how long before now the peer said it (a
+        signed result's signing time): the witness ages from then, not from its arrival. True
+        when that withdrew the link to the peer: the caller takes it out of its merge (no
+        estimate says so before the next one)."""
         if peer == self.agent.cfg.name:
             return False
         held = self._witnesses.get(peer, {})
@@ -420,9 +424,11 @@ class Peers:
                 withdrawn = True
         elif link_state != "confirmed" or reason == "disputed_by_cycles":
             held.pop("confirmed", None)
+        passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
+        if mode == "dense" and not passed:    # its newer points no longer bear the older estimate out
+            held.pop("dense", None)
         if peer in self._witnesses and not held:
             del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
-        passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
         if not passed:
             return withdrawn
         if not is_rigid(T_peer_agent):   # the ROS layer decodes rigid ones only
@@ -434,7 +440,7 @@ class Peers:
         if peer not in self._witnesses and len(self._witnesses) >= self.cfg.max_peers:
             del self._witnesses[min(self._witnesses, key=lambda p: max(t for _, t in self._witnesses[p].values()))]
         kind = "confirmed" if verified else "dense"
-        self._witnesses.setdefault(peer, {})[kind] = (invert_transform(T), now)
+        self._witnesses.setdefault(peer, {})[kind] = (invert_transform(T), now - max(float(age_s), 0.0))
         link = self.links.get(peer)
         if self.cfg.confirm and link is not None and link.confirmed is None and link.candidate is not None \
                 and self._witnessed(link.candidate, peer, now) and self._held_long(link, now):
@@ -938,6 +944,12 @@ class Peers:
         self._count(counter)
         link.confirmed, link.kept, link.candidate, link.candidate_at = None, None, candidate, now
         link.by_peer = False
+        # the peer's confirmed link heard before may rest on this agent's word alone (it was
+        # confirmed by it): only what the peer says from now on may vouch for the next link
+        held = self._witnesses.get(link.peer_id, {})
+        held.pop("confirmed", None)
+        if not held:     # the eviction ranks peers by their latest witness: none left, no entry
+            self._witnesses.pop(link.peer_id, None)
         self._await_dense(link)
 
     def _await_dense(self, link: PeerLink) -> None:

@@ -73,7 +73,20 @@ def test_a_private_key_other_users_can_read_is_refused_at_load(tmp_path):
     init_keystore(tmp_path, ["a", "b"])
     Keystore(tmp_path).signer("a")
     os.chmod(tmp_path / "private" / "b.key", 0o644)
-    with pytest.raises(KeystoreError, match=r"private/b.key can be read by other users \(mode 644\); chmod 600"):
+    with pytest.raises(KeystoreError, match=r"private/b.key can be read by other users \(mode 644\); chmod 600") as err:
+        Keystore(tmp_path)
+    assert str(err.value).count("keystore") == 1      # said once, not wrapped again
+
+
+@pytest.mark.parametrize("where", ["public/b.pub", "public", "private", "."])
+def test_a_keystore_other_users_can_write_to_is_refused_at_load(tmp_path, where):
+    """As ssh's StrictModes: whoever may replace public/b.pub may sign as b."""
+    import os
+
+    init_keystore(tmp_path, ["a", "b"])
+    path = tmp_path / where
+    os.chmod(path, path.stat().st_mode | 0o002)
+    with pytest.raises(KeystoreError, match=r"can be written by other users .*chmod go-w"):
         Keystore(tmp_path)
 
 

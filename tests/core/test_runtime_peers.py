@@ -548,6 +548,43 @@ def test_a_contradicting_estimate_withdraws_the_link(model, graphs):
     assert est.verified and est.mode == "coarse" and rte(est.T, W @ T_GT) < 0.2
 
 
+def test_a_withdrawn_link_forgets_the_peers_word_heard_before(model, graphs):
+    """b's confirmed link may rest on a's word alone (b confirmed it on a's link): once a's link
+    is withdrawn, that word must not vouch for a's next estimate of the same pose."""
+    from sgreg_core.geometry import invert_transform
+    a, b, reg, _ = confirmed_link(model, graphs, PeersConfig(min_request_interval_s=0.0))
+    reg.on_peer_result("b", invert_transform(reg.links["b"].confirmed.T), True, "merged", "ok",
+                       "confirmed", now=1.2)
+    anything = Hypothesis(reg.links["b"].confirmed.T, ("a1", "b1", "coarse"), "coarse", 10)
+    assert reg._witnessed(anything, "b", 1.5)
+    reg.links["b"].kept, reg.links["b"].dense_cloud = None, None
+    b.set_graph(moved_graph(graphs[1], yaw_transform(np.radians(60.0), (2.0, 1.0, 0.0)),
+                            np.random.default_rng(9), jitter=0.002), 3, 2_000_000_000)
+    reg.on_coarse(b.coarse_message(3), now=2.0)
+    req = reg.links["b"].pending
+    assert reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=2.5).reason == "contradicted"
+    assert not reg._witnessed(anything, "b", 2.6) and "b" not in reg._witnesses
+    # what b says from now on counts again
+    reg.on_peer_result("b", invert_transform(anything.T), True, "merged", "ok", "confirmed", now=2.7)
+    assert reg._witnessed(anything, "b", 2.8)
+
+
+def test_the_peers_word_ages_from_when_it_was_said_and_a_failed_dense_result_takes_one_back(model, graphs):
+    from sgreg_core.geometry import invert_transform
+    T_ba = invert_transform(T_GT)
+    dense = Hypothesis(T_GT, ("a1", "b1", "dense"), "dense", 10)
+    a, b, reg, _ = make_agents(model, graphs, PeersConfig(coarse_with_dense=False))
+    reg.on_peer_result("b", T_ba, True, "dense", "ok", "confirmed", now=5.0, age_s=8.0)
+    assert reg._witnessed(dense, "b", 6.0) and not reg._witnessed(dense, "b", 7.5)   # 10 s after signing
+    reg.on_peer_result("b", T_ba, True, "dense", "ok", "confirmed", now=5.0, age_s=float("inf"))
+    assert not reg._witnessed(dense, "b", 5.0)      # signed before this node started
+    # b's passing dense estimate, then a dense one of b that ties: the first one no longer counts
+    reg.on_peer_result("b", T_ba, False, "dense", "awaiting_confirmation", "candidate", now=10.0)
+    assert reg._witnessed(dense, "b", 10.1)
+    reg.on_peer_result("b", T_ba, False, "dense", "ambiguous", "candidate", now=10.2)
+    assert not reg._witnessed(dense, "b", 10.3) and "b" not in reg._witnesses
+
+
 def test_a_tie_from_new_data_withdraws_a_confirmed_link_with_withdraw_on_tie(model, graphs):
     """withdraw_on_tie: a dense estimate from new data refused as ambiguous takes a confirmed
     link back (nothing published until it is confirmed again); off, the link stays."""

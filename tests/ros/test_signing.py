@@ -45,3 +45,26 @@ def test_a_signed_message_checks_after_the_wire_and_a_changed_one_does_not(tmp_p
     tamper(changed)
     assert MessageAuth(AuthConfig(keystore=str(tmp_path)), "b", Quiet()).check(changed, topic, "a") \
         == "bad_signature"
+
+
+def test_a_results_age_is_counted_from_its_signing_and_one_from_before_a_restart_has_none(tmp_path):
+    """What the registration node dates a peer's word by (Peers.on_peer_result age_s)."""
+    import time
+
+    from sgreg_ros import convert
+
+    init_keystore(tmp_path, ["a", "b"])
+    sender = MessageAuth(AuthConfig(keystore=str(tmp_path)), "a", Quiet())
+    before_restart = sender.sign(result(), "/a/sgreg/registration").signed_ns
+    receiver = MessageAuth(AuthConfig(keystore=str(tmp_path)), "b", Quiet())
+    assert receiver.said_s_ago(before_restart) == float("inf")
+    msg = result()
+    msg.header.frame_id = msg.transform.header.frame_id = "b/map"
+    msg.transform.child_frame_id = "a/map"
+    msg.transform.transform.rotation.w = 1.0
+    sender.sign(msg, "/a/sgreg/registration")
+    taken = convert.result_from_msg(deserialize_message(serialize_message(msg), RegistrationResult))
+    assert taken.signed_ns == msg.signed_ns and 0.0 <= receiver.said_s_ago(taken.signed_ns) < 1.0
+    receiver._started_ns -= 60_000_000_000           # as if it had run for a minute
+    assert receiver.said_s_ago(time.time_ns() - 4_000_000_000) == pytest.approx(4.0, abs=0.5)
+    assert MessageAuth(AuthConfig(), "b", Quiet()).said_s_ago(0) == 0.0      # nothing is signed
