@@ -38,8 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="real scans (default: ../shared/data/scans next to the repository)")
     parser.add_argument("--scan-prefix", default="scannet-picwoon_", help="scan directory prefix")
     parser.add_argument("--rescan-gt", default=RESCAN_GT, help="pseudo ground truth between captures")
-    parser.add_argument("--val-room", default="scene0005",
-                        help="room the pairs are cut from (held out of training)")
+    parser.add_argument("--room", "--val-room", dest="room", default="scene0005",
+                        help="room the pairs are cut from (held out of training and validation)")
     parser.add_argument("--cache-dir", default="runs/cache/pairs", help="cut pairs are cached here")
     parser.add_argument("--text-cache", default="runs/cache/text_minilm.npz",
                         help="label embeddings are cached here")
@@ -98,15 +98,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"sgreg bench-match: {exc}", file=sys.stderr)
         return 2
 
-    base = DataConfig(scans_dir=args.scans_dir, scan_prefix=args.scan_prefix, rescan_gt=args.rescan_gt, val_room=args.val_room,
-                      val_pairs=args.pairs, cache_dir=args.cache_dir)
+    base = DataConfig(scans_dir=args.scans_dir, scan_prefix=args.scan_prefix, rescan_gt=args.rescan_gt,
+                      test_rooms=(args.room,), val_pairs=args.pairs, cache_dir=args.cache_dir)
     conditions = {"clean": dataclasses.replace(base, noise_prob=0.0),
                   "noisy": dataclasses.replace(base, noise_prob=1.0, noise=VIEW_NOISE["noisy"]),
                   "frontend": dataclasses.replace(base, noise_prob=1.0, noise=VIEW_NOISE["frontend"])}
     pairs = {}
     try:
         for cond, cfg in conditions.items():
-            source = PairSource(cfg, "val", args.seed)
+            source = PairSource(cfg, "test", args.seed)
             # each pair seen from its own random 4-DoF frames (yaw in [-180, 180)), seeded
             pairs[cond] = [augment(source.pair(k), np.random.default_rng([args.seed, k]))
                            for k in range(len(source))]

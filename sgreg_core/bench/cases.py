@@ -56,7 +56,8 @@ class CaseConfig:
     rooms:               tested rooms (scene ids); default the room held out of training.
     held_out_rooms:      rooms the network never saw in training (the others are flagged
                          "seen in training" in the report).
-    other_rooms:         rooms for the different-room check; empty = every other room found.
+    other_rooms:         rooms for the different-room check; empty = every other room found
+                         (a held-out room only for a held-out tested room).
     rescan_gt:           pseudo ground truth between captures ("" skips the rescan setting).
     n:                   pairs per setting for clean, noisy and different_rooms.
     rescan_seeds:        random 4-DoF transforms per rescan direction of a held-out room.
@@ -190,12 +191,26 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     return out
 
 
-def _different_room_cases(cfg: CaseConfig, tested: list[str], others: list[str]) -> list[Case]:
+def _other_rooms_of(cfg: CaseConfig, a: str, scans: list[str]) -> list[str]:
+    """Scans of rooms other than a's for a different-room pair: other_rooms when given, else
+    any, but a held-out room only beside another held-out room (the different-room poses of
+    training rooms feed threshold fits, which the held-out room must never enter)."""
+    held = set(cfg.held_out_rooms)
+    return [s for s in scans if _room(s) != _room(a)
+            and (_room(s) in cfg.other_rooms if cfg.other_rooms
+                 else _room(s) not in held or _room(a) in held)]
+
+
+def _different_room_cases(cfg: CaseConfig, tested: list[str], scans: list[str]) -> list[Case]:
     out = []
-    for k in range(cfg.n if others else 0):
+    root = resolve(cfg.scans_dir)
+    for k in range(cfg.n):
+        a = tested[k % len(tested)]
+        others = _other_rooms_of(cfg, a, scans)
+        if not others:
+            continue
         rng = np.random.default_rng([cfg.seed, _SEED["different_rooms"], k])
-        a, b = tested[k % len(tested)], others[k % len(others)]
-        root = resolve(cfg.scans_dir)
+        b = others[k % len(others)]
         view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng), rng).src
         ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng), rng).ref
         out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,
@@ -210,8 +225,6 @@ def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[C
     if not tested:
         raise InstanceMapError(f"{cfg.scans_dir}: no {cfg.scan_prefix}* scan of rooms "
                                f"{list(cfg.rooms)}")
-    others = [s for s in scans if _room(s) not in cfg.rooms
-              and (not cfg.other_rooms or _room(s) in cfg.other_rooms)]
     cases: list[Case] = []
     for setting in SETTINGS:
         if setting not in settings:
@@ -221,5 +234,5 @@ def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[C
         elif setting == "rescan":
             cases += _rescan_cases(cfg, set(scans))
         else:
-            cases += _different_room_cases(cfg, tested, others)
+            cases += _different_room_cases(cfg, tested, scans)
     return cases

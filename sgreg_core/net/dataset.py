@@ -50,10 +50,18 @@ class DataConfig:
                       start at the repository (sgreg_core/paths.py).
     scan_prefix:      scans used (the 50k-point "picwoon" subsamples; others duplicate rooms).
     rescan_gt:        pseudo ground truth between captures of one room ("" to skip rescans).
-    val_room:         scene id kept out of training (all its captures) for validation.
-    train_pairs / val_pairs: pool sizes; a training run cycles through its pool.
+    test_rooms:       scene ids held out of training and of validation alike (all captures):
+                      only benchmarks report on them (split "test": bench-match; bench-register
+                      and the replay suites' held-out rows), so no choice of weights, settings
+                      or thresholds can rest on them.
+    val_room:         a scene id kept out of training (all its captures) to validate on; empty:
+                      validation on synthetic scenes never trained on (seeds synth_scenes ..
+                      synth_scenes + val_synth_scenes - 1). Never one of test_rooms.
+    train_pairs / val_pairs: pool sizes; a training run cycles through its pool (the test
+                      split's pool is val_pairs too).
     mix:              relative weight of the sources scan / rescan / synth in training.
     synth_scenes:     distinct synthetic scenes (seeds 0..n-1), 1-2 rooms each.
+    val_synth_scenes: synthetic scenes of the validation split when val_room is empty.
     overlap:          overlap of two views, uniform in this range.
     halves_prob:      probability that views split every point (half density) rather than the band.
     noise_prob:       probability that a pair gets front-end noise.
@@ -67,11 +75,13 @@ class DataConfig:
     scans_dir: str = SCANS
     scan_prefix: str = "scannet-picwoon_"
     rescan_gt: str = RESCAN_GT
-    val_room: str = "scene0005"
+    test_rooms: tuple[str, ...] = ("scene0005",)
+    val_room: str = ""
     train_pairs: int = 800
     val_pairs: int = 40
     mix: dict = field(default_factory=lambda: {"scan": 0.4, "rescan": 0.2, "synth": 0.4})
     synth_scenes: int = 200
+    val_synth_scenes: int = 20
     overlap: tuple[float, float] = (0.3, 0.8)
     halves_prob: float = 0.3
     noise_prob: float = 0.5
@@ -87,6 +97,11 @@ class DataConfig:
         bad = {k: v for k, v in self.mix.items() if k not in MIX_SOURCES or not finite_number(v) or v < 0}
         if bad:
             raise ValueError(f"data.mix: {bad} are not weights >= 0 of the sources {', '.join(MIX_SOURCES)}")
+        if self.val_room and self.val_room in self.test_rooms:
+            raise ValueError(f"data.val_room {self.val_room} is one of test_rooms: a room held out "
+                             "for reporting must not select weights")
+        if self.val_synth_scenes < 1:
+            raise ValueError("data.val_synth_scenes must be >= 1")
 
 
 MIX_SOURCES = ("scan", "rescan", "synth")
@@ -163,29 +178,40 @@ def _synth_scene(seed: int) -> InstanceMap:
     return generate_scene(seed, cfg)
 
 
+SPLITS = ("train", "val", "test")
+
+
 class PairSource:
-    """The pool of pairs of one split ("train" or "val"), generated lazily and cached."""
+    """The pool of pairs of one split, generated lazily and cached: "train" (every room but
+    val_room and test_rooms, and synthetic scenes), "val" (val_room, or unseen synthetic
+    scenes) or "test" (test_rooms: what benchmarks report, never what runs choose on)."""
 
     def __init__(self, cfg: DataConfig, split: str, seed: int = 0):
-        if split not in ("train", "val"):
-            raise ValueError(f"split must be 'train' or 'val', got {split!r}")
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
         self.cfg, self.split, self.seed = cfg, split, seed
         scans = sorted(p.name for p in require(cfg.scans_dir, "scans folder").glob(cfg.scan_prefix + "*")
                        if p.is_dir())
-        in_val = [cfg.val_room in name for name in scans]
-        self.scans = [s for s, v in zip(scans, in_val) if v == (split == "val")]
+
+        def split_of(name: str) -> str:
+            if any(room in name for room in cfg.test_rooms):
+                return "test"
+            return "val" if cfg.val_room and cfg.val_room in name else "train"
+        self.scans = [s for s in scans if split_of(s) == split]
         self.rescans = self._rescan_list(set(self.scans))
         sources = {"scan": bool(self.scans), "rescan": bool(self.rescans),
                    "synth": split == "train" and cfg.synth_scenes > 0}
-        if split == "val":  # validation: real pairs of the held-out room only
-            weights = {"scan": 0.7, "rescan": 0.3}
-        else:
+        if split == "train":
             weights = dict(cfg.mix)
+        elif split == "val" and not cfg.val_room:    # synthetic scenes no training pair came from
+            weights, sources["synth"] = {"synth": 1.0}, True
+        else:   # real pairs of the held-out rooms only
+            weights = {"scan": 0.7, "rescan": 0.3}
         self.weights = {k: float(w) for k, w in weights.items() if sources.get(k) and w > 0}
         if not self.weights:
             raise FileNotFoundError(f"no data for split {split!r}: scans {cfg.scans_dir}/"
-                                    f"{cfg.scan_prefix}* (val room {cfg.val_room}), synthetic scenes "
-                                    f"{cfg.synth_scenes}")
+                                    f"{cfg.scan_prefix}* (test rooms {', '.join(cfg.test_rooms) or '-'}, "
+                                    f"val room {cfg.val_room or '-'}), synthetic scenes {cfg.synth_scenes}")
         self.size = cfg.train_pairs if split == "train" else cfg.val_pairs
         self.cache = Path(cfg.cache_dir) / f"{split}-{self._key()}"
 
@@ -220,6 +246,7 @@ class PairSource:
 
     def _make(self, index: int) -> GraphPair:
         cfg = self.cfg
+        # held-out pairs draw as the validation pairs of the held-out room always did
         rng = np.random.default_rng([self.seed, index, 0 if self.split == "train" else 1])
         kinds = list(self.weights)
         p = np.array([self.weights[k] for k in kinds])
@@ -238,7 +265,8 @@ class PairSource:
                 scan = self.scans[int(rng.integers(len(self.scans)))]
                 reg, name = make_pair(self._scan(scan), pair_cfg, rng), f"scan:{scan}"
             else:
-                seed = int(rng.integers(cfg.synth_scenes))
+                seed = int(rng.integers(cfg.synth_scenes)) if self.split == "train" else \
+                    cfg.synth_scenes + int(rng.integers(cfg.val_synth_scenes))
                 reg, name = make_pair(_synth_scene(seed), pair_cfg, rng), f"synth:{seed}"
             pair = graph_pair_from_registration(reg, cfg.graph, name, cfg.level)
             if len(pair.gt) >= cfg.min_matches and min(pair.src.num_nodes, pair.ref.num_nodes) >= 3:

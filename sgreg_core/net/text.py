@@ -54,7 +54,9 @@ def _load_minilm() -> EmbedFn:
     model.eval()
 
     def embed(labels: list[str]) -> np.ndarray:
-        emb = model.encode(labels, batch_size=64, normalize_embeddings=True,
+        # one label per batch: padded together, a label's embedding moves in the 7th digit with
+        # its batch-mates, so a label's vector would depend on which others a cache missed
+        emb = model.encode(labels, batch_size=1, normalize_embeddings=True,
                            convert_to_numpy=True, show_progress_bar=False)
         return np.asarray(emb, dtype=np.float32)
 

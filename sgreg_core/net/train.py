@@ -240,9 +240,11 @@ def _changed(before: dict | None, now: dict, prefix: str = "") -> list[str]:
 
 def _trained_on(cfg: TrainConfig) -> str:
     d = cfg.data
+    val = f"room {d.val_room}" if d.val_room else f"{d.val_synth_scenes} unseen synthetic scenes"
     return (f"pairs cut from ScanNet v2 scans in {d.scans_dir} ({d.scan_prefix}*, rescans with "
-            f"pseudo ground truth) except room {d.val_room} (validation), mixed with synthetic "
-            f"scenes of sgreg_core.simulation.synth; mix {d.mix}")
+            f"pseudo ground truth) except rooms {', '.join(d.test_rooms) or '-'} (held out for "
+            f"reporting) and the validation's ({val}), mixed with synthetic scenes of "
+            f"sgreg_core.simulation.synth; mix {d.mix}")
 
 
 def plot_history(history: dict, path: Path) -> None:

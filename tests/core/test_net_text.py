@@ -24,6 +24,15 @@ def minilm():
     return encoder
 
 
+def test_a_labels_embedding_does_not_depend_on_the_labels_missed_with_it(minilm):
+    """The cache embeds whatever it misses at once: a label must come out the same whether it
+    was missed alone or with longer labels (training and the nodes read each other's caches)."""
+    embed = minilm._embed_fn
+    alone = embed(["office chair"])[0]
+    together = embed(["a very long label of a piece of furniture seen in a hall", "office chair"])[1]
+    assert np.array_equal(alone, together)
+
+
 def test_minilm_embeddings_are_semantic_unit_vectors(minilm):
     emb = minilm.encode(["sofa", "couch", "ceiling", "Sofa ", "sofa"])
     assert emb.shape == (5, TEXT_DIM) and emb.dtype == np.float32

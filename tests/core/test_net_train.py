@@ -46,6 +46,20 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+def test_the_held_out_room_is_neither_trained_nor_validated_on(tmp_path, scans):
+    """test_rooms are what benchmarks report on: no run may train or select weights on them."""
+    from dataclasses import replace
+
+    cfg = replace(_cfg(tmp_path, scans).data, test_rooms=("scene0002",), val_room="", synth_scenes=2)
+    assert PairSource(cfg, "train", 0).scans == ["toy_scene0001_00"]
+    assert PairSource(cfg, "test", 0).scans == ["toy_scene0002_00"]
+    val = PairSource(cfg, "val", 0)
+    assert val.scans == [] and val.weights == {"synth": 1.0}
+    assert val.pair(0).source in {f"synth:{k}" for k in range(2, 2 + cfg.val_synth_scenes)}   # never trained on
+    with pytest.raises(ValueError, match="one of test_rooms"):
+        replace(cfg, val_room="scene0002")
+
+
 def test_pair_source_splits_rooms_and_caches(tmp_path, scans):
     cfg = _cfg(tmp_path, scans).data
     train_src, val_src = PairSource(cfg, "train", 0), PairSource(cfg, "val", 0)
@@ -161,7 +175,7 @@ def test_default_config_file_parses_and_overrides():
     data = yaml.safe_load((Path(__file__).parents[2] / "config" / "train.yaml").read_text())
     cfg = from_dict(TrainConfig, apply_overrides(data, ["optim.steps=7", "model.fusion=early"]))
     assert cfg.optim.steps == 7 and cfg.model.fusion == "early"
-    assert cfg.data.val_room == "scene0005"
+    assert cfg.data.test_rooms == ("scene0005",) and cfg.data.val_room == ""
     with pytest.raises(ValueError, match="unknown"):
         from_dict(TrainConfig, apply_overrides(data, ["optim.stepz=7"]))
 

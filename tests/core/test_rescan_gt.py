@@ -61,3 +61,17 @@ def test_bench_register_and_training_refuse_a_malformed_file_instead_of_skipping
     source.cfg = DataConfig(rescan_gt=path)
     with pytest.raises(RescanGTError, match="must be true or false, got 'no'"):
         source._rescan_list({"a", "b"})
+
+
+def test_a_different_room_pair_of_a_training_room_never_takes_the_held_out_room():
+    """The different-room poses of training rooms are negatives of threshold fits
+    (scripts/choose_geometric.py): the held-out room must not be their other room."""
+    from sgreg_core.bench.cases import CaseConfig, _other_rooms_of
+
+    scans = ["p_scene0000_00", "p_scene0000_01", "p_scene0001_00", "p_scene0005_00", "p_scene0005_01"]
+    cfg = CaseConfig(rooms=("scene0000", "scene0001"), held_out_rooms=("scene0005",))
+    assert _other_rooms_of(cfg, "p_scene0000_01", scans) == ["p_scene0001_00"]
+    held = CaseConfig(rooms=("scene0005",), held_out_rooms=("scene0005",))
+    assert _other_rooms_of(held, "p_scene0005_00", scans) == scans[:3]      # any other room
+    asked = CaseConfig(rooms=("scene0000",), other_rooms=("scene0005",))
+    assert _other_rooms_of(asked, "p_scene0000_00", scans) == scans[3:]     # named on purpose
