@@ -1,7 +1,9 @@
 """`sgreg bench-match [--weights W ...]`: node / point matching quality and stage timings.
 
-Pairs come from the validation room only (never trained on): partial views of each capture
-and views of one capture against the other (rescans), yaw uniform in [-180, 180): clean, noisy
+Pairs come from the held-out room only (never trained on, never validated on): partial views
+of each capture and views of one capture against the other (rescans), yaw uniform in
+[-180, 180); with --on val, from the training's validation split instead (synthetic scenes no
+training pair comes from): what a choice between weights may rest on. Conditions: clean, noisy
 (jitter, split, dropped and partial instances, paraphrases) and frontend (all of those plus
 wrong classes, merged and invented instances and per-map tilt; bench.cases.VIEW_NOISE). Several weight files (the shipped model and its
 ablations: no triplets, no shape feature, early fusion, each trained with
@@ -40,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rescan-gt", default=RESCAN_GT, help="pseudo ground truth between captures")
     parser.add_argument("--room", "--val-room", dest="room", default="scene0005",
                         help="room the pairs are cut from (held out of training and validation)")
+    parser.add_argument("--on", choices=("test", "val"), default="test",
+                        help="test: the held-out room (to report); val: the validation split, "
+                        "unseen synthetic scenes (to choose between weights)")
     parser.add_argument("--cache-dir", default="runs/cache/pairs", help="cut pairs are cached here")
     parser.add_argument("--text-cache", default="runs/cache/text_minilm.npz",
                         help="label embeddings are cached here")
@@ -106,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     pairs = {}
     try:
         for cond, cfg in conditions.items():
-            source = PairSource(cfg, "test", args.seed)
+            source = PairSource(cfg, args.on, args.seed)
             # each pair seen from its own random 4-DoF frames (yaw in [-180, 180)), seeded
             pairs[cond] = [augment(source.pair(k), np.random.default_rng([args.seed, k]))
                            for k in range(len(source))]

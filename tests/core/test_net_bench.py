@@ -69,3 +69,16 @@ def test_bench_match_refuses_bad_arguments_before_any_pair(tmp_path, capsys, arg
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("sgreg bench-match: ") and "\n" not in err
     assert not (tmp_path / "b.json").exists()
+
+
+def test_bench_match_on_the_validation_split_uses_unseen_synthetic_scenes_not_the_held_out_room(setup, capsys):
+    """What a choice between weights may rest on (--on val), apart from what is reported."""
+    tmp_path, scans, paths = setup
+    out = tmp_path / "results" / "val.json"
+    code = cli.main(["bench-match", "--weights", paths[0], "--pairs", "1", "--scans-dir", str(scans),
+                     "--scan-prefix", "toy_", "--rescan-gt", "", "--room", "scene0009", "--on", "val",
+                     "--cache-dir", str(tmp_path / "cache"), "--text-cache", str(tmp_path / "text.npz"),
+                     "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    sources = {row["source"] for r in json.loads(out.read_text())["results"] for row in r["pairs"]}
+    assert sources and all(s.startswith("synth:") and int(s.split(":")[1]) >= 200 for s in sources)
