@@ -111,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
     pairs = {}
     try:
         for cond, cfg in conditions.items():
+            print(f"[bench-match] {cond}: {args.pairs} pairs ({args.on} split; cut once, then cached)",
+                  file=sys.stderr, flush=True)
             source = PairSource(cfg, args.on, args.seed)
             # each pair seen from its own random 4-DoF frames (yaw in [-180, 180)), seeded
             pairs[cond] = [augment(source.pair(k), np.random.default_rng([args.seed, k]))
@@ -122,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
     results = []
     for name, path, model in zip(names, weights, models):
         for cond, cond_pairs in pairs.items():
+            print(f"[bench-match] {name} on {len(cond_pairs)} {cond} pairs", file=sys.stderr, flush=True)
             rows = evaluate_pairs(model, cond_pairs, args.min_iou, args.inlier_threshold)
             results.append({"model": name, "weights": path, "weights_id": model.weights_id,
                             "condition": cond, "summary": summarize(rows), "pairs": rows})
