@@ -14,7 +14,7 @@ declare -A variants=(
 )
 names=(late no_triplets no_shape early)
 for name in "${names[@]}"; do
-  dir=runs/abl_$name
+  dir=runs/abl_${name}_${steps}     # the step count in the name: runs of other lengths are not "done"
   if [[ -f $dir/model.safetensors ]]; then echo "== $name: done"; continue; fi
   resume=""; [[ -f $dir/checkpoint.pt ]] && resume="--resume"
   echo "== $name: training $steps steps into $dir"
@@ -22,6 +22,6 @@ for name in "${names[@]}"; do
   sgreg train --config config/train.yaml --set optim.steps="$steps" --set run_dir="$dir" \
     ${variants[$name]} $resume
 done
-weights=(); for name in "${names[@]}"; do weights+=("runs/abl_$name/model.safetensors"); done
+weights=(); for name in "${names[@]}"; do weights+=("runs/abl_${name}_${steps}/model.safetensors"); done
 sgreg bench-match --weights "${weights[@]}" sgreg_core/weights/sgreg.safetensors \
   --names "${names[@]/%/_${steps}}" shipped_2000 --out results/bench_match.json

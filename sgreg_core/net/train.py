@@ -217,7 +217,8 @@ def _saved_config(run: _Run) -> dict | None:
     return yaml.safe_load(path.read_text()) if path.exists() else None
 
 
-# settings a resumed run may change: where it runs and reports, not what it trains
+# settings a resumed run may change: where it runs and reports, not what it trains (threads
+# only changes float rounding: weights then differ from an uninterrupted run's in the 5th digit)
 RESUMABLE_CHANGES = ("run_dir", "threads", "log_every", "val_every", "checkpoint_every", "text_cache",
                      "data.cache_dir")
 
