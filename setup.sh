@@ -46,7 +46,8 @@ req_hash=$(hash_of "$ROOT"/requirements/*.txt)
 if ! stamp_ok requirements "$req_hash"; then
   say "installing torch (CPU wheel) first"
   "${PIP[@]}" install -r "$ROOT/requirements/torch.txt" 2>&1 | grep -v "is ignored" || true
-  "$VENV/bin/python" -c "import torch" || die "torch did not install"
+  # (numpy comes with the core deps next: torch's "Failed to initialize NumPy" is expected here)
+  "$VENV/bin/python" -W ignore::UserWarning -c "import torch" || die "torch did not install"
   say "installing ROS 2 Jazzy wheels and the core dependencies (pinned)"
   "${PIP[@]}" install -c "$ROOT/requirements/constraints.txt" \
     -r "$ROOT/requirements/ros.txt" -r "$ROOT/requirements/core.txt" 2>&1 | grep -v "is ignored" || true
@@ -125,5 +126,5 @@ SH
   chmod +x "$VENV/lib/sgreg_ros/$exe"
 done
 
-mkdir -p "$ROOT/.ros_log"
+[ -n "${ROS_LOG_DIR:-}" ] || mkdir -p "$ROOT/.ros_log"     # env/activate's default
 say "ready in $(( $(date +%s) - t_start )) s; venv $(du -sh "$VENV" | cut -f1). Enter it with: source env/activate"

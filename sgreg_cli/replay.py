@@ -348,6 +348,8 @@ def _run_replay(bag, cfg: ReplayConfig, names: list[str], overrides: dict, origi
                     break
                 end_at = time.monotonic() + cfg.tail_s
                 bag_end = end_at - cfg.tail_s - t0
+                log(f"bag played ({bag_end:.0f} s); listening {cfg.tail_s:g} s more: the last "
+                    "dense exchanges, then the link once the maps stop changing (--tail)")
         duration = time.monotonic() - t0
         if restart is not None and died is None:
             # asked for but never done: say so, rather than a report that reads as a restart survived

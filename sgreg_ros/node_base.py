@@ -41,6 +41,10 @@ class SgregNode(Node):
         self.run_clock = RunClock()
         self.health = Health(HealthConfig(**pick(HealthConfig, self.p)), self.clock_s())
         self.auth = MessageAuth(AuthConfig(**pick(AuthConfig, self.p)), self.name, self.get_logger())
+        if self.auth.keystore is not None:    # (without one, MessageAuth says so, loudly)
+            fleet = ", ".join(sorted(set(self.auth.keystore.owners.values())))
+            self.get_logger().info(f"signing as '{self.name}' (key {self.auth.key_id}); fleet "
+                                   f"keystore {self.auth.keystore.root}: agents {fleet}")
         self.problem: str | None = None      # why the node cannot do its job at all
         self.sole_topic = self.topic(sole_topic)
         self.twin: str | None = None         # another node publishing sole_topic

@@ -121,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
 
     rows = []
     during: dict[str, list[float]] = {}     # setting -> reference times taken among its cases
-    bar = tqdm(cases, desc="bench-register", unit="case", disable=args.no_progress)
+    # into a log file (not a terminal) a frame every 30 s, not dozens of carriage returns
+    bar = tqdm(cases, desc="bench-register", unit="case", disable=args.no_progress,
+               mininterval=0.1 if sys.stderr.isatty() else 30.0)
     for i, case in enumerate(bar):
         bar.set_postfix_str(f"{case.setting} {case.name}")
         if i % machine.REFERENCE_EVERY == 0:

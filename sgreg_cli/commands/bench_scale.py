@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import json
+    import math
 
     import torch
 
@@ -59,9 +60,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['nodes']:6d} {r['correspondences']:6d} " + " ".join(f"{r[k]:14.1f}" for k in keys)
               + f" {r['coarse_message_kb']:10.1f} {r['dense_message_kb']:9.1f} {r['peak_rss_mb']:8.0f}"
               + f" {int(r['coarse_ok'])}/{int(r['dense_ok'])}")
-    # one size gives no growth (null in the JSON, which has no NaN)
-    exponents = {k: growth(rows, k) if len(rows) > 1 else None for k in keys}
-    print("growth exponent k (time ~ nodes^k): " + (", ".join(f"{k[:-3]} {v:.2f}" for k, v in exponents.items())
+    # one size, or a stage too fast to time, gives no growth (null in the JSON, which has no NaN)
+    exponents = {k: (None if math.isnan(g) else g) for k in keys for g in [growth(rows, k)]}
+    print("growth exponent k (time ~ nodes^k): " + (", ".join(f"{k[:-3]} {'-' if v is None else f'{v:.2f}'}"
+                                                              for k, v in exponents.items())
                                                     if len(rows) > 1 else "needs two sizes or more"))
     (out / "results.json").write_text(json.dumps({"rows": rows, "growth_exponent": exponents,
                                                   "weights_id": model.weights_id,

@@ -11,7 +11,8 @@ HELP = "per-topic bandwidth of live topics or of a bag"
 
 
 def add_arguments(p):
-    p.add_argument("topics", nargs="*", type=topic_name, help="topics to watch (default: every /*/sgreg/* topic)")
+    p.add_argument("topics", nargs="*", type=topic_name, help="topics to watch (default: every topic with /sgreg/ in its name: the "
+                   "agents' and a replay's /sgreg/ground_truth)")
     p.add_argument("--bag", help="report a rosbag2 directory instead of live topics")
     p.add_argument("--window", type=float, default=10.0, help="live: averaging window in seconds (msgs "
                    "and mean over the window; total since the start; default 10)")

@@ -14,7 +14,8 @@ HELP = "draw the merged map of a bag (recorded /tf, else ground truth) top-down"
 
 
 def add_arguments(p):
-    p.add_argument("bag", help="rosbag2 directory (with ground_truth.json, or a recorded /tf)")
+    p.add_argument("bag", help="rosbag2 directory with the agents' maps (/<id>/mapping/instances) "
+                   "and ground_truth.json or a recorded /tf")
     p.add_argument("--png", required=True, help="write the picture here")
     p.add_argument("--frame", default=None,
                    help="merged frame on /tf (default: the nodes' merged_frame, sgreg_merged)")
@@ -41,7 +42,8 @@ def run(args) -> int:
         print(f"sgreg view: {exc}", file=sys.stderr)
         return 2
     if not clouds:
-        print(f"sgreg view: {bag} holds no instance maps", file=sys.stderr)
+        print(f"sgreg view: {bag} holds no instance maps (record /<id>/mapping/instances with the "
+              "agents' topics to draw it)", file=sys.stderr)
         return 2
     frame = args.frame or MergeConfig().merged_frame
     poses = {child.split("/")[0]: T for child, (parent, T) in tf.items() if parent == frame}

@@ -161,8 +161,14 @@ def run_scale(model: SGRegModel, cfg: ScaleConfig, log=print) -> list[dict]:
     return rows
 
 
+MIN_TIMED_MS = 0.1   # a stage this fast at some size is below the timer's resolution there
+
+
 def growth(rows: list[dict], key: str) -> float:
-    """k in time ~ n^k, a least-squares line through log time against log nodes."""
+    """k in time ~ n^k, a least-squares line through log time against log nodes; NaN with one
+    size, or where the stage took less than MIN_TIMED_MS at some size (its log says nothing)."""
+    if len(rows) < 2 or min(r[key] for r in rows) < MIN_TIMED_MS:
+        return float("nan")
     n = np.log([r["nodes"] for r in rows])
-    v = np.log([max(r[key], 1e-3) for r in rows])
-    return float(np.polyfit(n, v, 1)[0]) if len(rows) > 1 else float("nan")
+    v = np.log([r[key] for r in rows])
+    return float(np.polyfit(n, v, 1)[0])

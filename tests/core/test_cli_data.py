@@ -249,3 +249,15 @@ def test_bench_startup_times_no_shutdown_that_was_a_crash():
         else:
             with pytest.raises(ProcessFailed, match="the agent node exited with 5 on SIGINT: not timed"):
                 _stopped(proc, "the agent node")
+
+
+def test_growth_exponents_only_where_every_size_was_timed():
+    """A stage that took 0.0 ms at some size has no meaningful log: no exponent (bench-scale
+    printed -14 for one)."""
+    import math
+
+    from sgreg_core.bench.scale_bench import growth
+
+    rows = [{"nodes": 50, "a_ms": 2.0, "b_ms": 0.3}, {"nodes": 100, "a_ms": 8.0, "b_ms": 0.0}]
+    assert growth(rows, "a_ms") == pytest.approx(2.0)
+    assert math.isnan(growth(rows, "b_ms")) and math.isnan(growth(rows[:1], "a_ms"))
