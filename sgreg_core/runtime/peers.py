@@ -89,6 +89,10 @@ class PeersConfig:
         it is confirmed. A request goes out only when either map changed since the last
         answered exchange: the same two graphs give the same dense estimate, so asking again
         would only cost bandwidth (an unanswered request is asked again).
+    refresh_growth: a settled link (attached_request_interval_s) asks at min_request_interval_s
+        again once its coarse estimate matches this many times the nodes that the estimate
+        behind its last dense answer matched: a link confirmed on small early maps is
+        re-estimated on the grown ones instead of carried by its first points (0: off).
     search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
         first link, and confirm it, in seconds.
     attached_request_interval_s: the interval to a peer that the merger places in the agent's
@@ -220,6 +224,9 @@ class PeersConfig:
     attached_request_interval_s: float = param(30.0, "the request interval to a peer the merged "
                                                "frame places", 0.0,
                                                3600.0, live=True)
+    refresh_growth: float = param(0.0, "a settled link asks for new points at the usual interval "
+                                  "once the maps match on this many times the nodes its points "
+                                  "came from (0: off)", 0.0, 100.0, live=True)
     request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
                                      0.1, 600.0, live=True)
     retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0, live=True)
@@ -273,6 +280,7 @@ class _PendingRequest:
     node_ids: np.ndarray
     sent_at: float
     data: tuple[str, str]       # (own, peer) graph digests the request was made for
+    matches: int = 0            # node matches of the estimate that wished for it
     retries: int = 0
     earlier: tuple[int, ...] = ()   # the sequences it was sent under before its retries
 
@@ -299,7 +307,8 @@ class PeerLink:
     coarse_at: float = -np.inf   # when the last coarse graph arrived
     coarse_data: tuple[str, str] | None = None   # (own, peer) digests of the last coarse estimate
     exchanged: tuple[str, str] | None = None     # (own, peer) digests of the last answered request
-    wanted: tuple | None = None   # ((own, peer) digests, peer node ids): the dense data to ask for
+    wanted: tuple | None = None   # ((own, peer) digests, peer node ids, node matches): the dense data to ask for
+    exchanged_matches: int = 0   # node matches of the estimate whose wish the last answer met
     dense: GraphMessage | None = None
     dense_cloud: np.ndarray | None = None
     kept: Kept | None = None     # peer -> own inliers kept for merged estimates
@@ -575,7 +584,8 @@ class Peers:
     @staticmethod
     def _close_request(link: PeerLink) -> None:
         """The pending request is answered: its two graphs count as exchanged."""
-        link.exchanged, link.pending, link.gave_up = link.pending.data, None, False
+        link.exchanged, link.exchanged_matches = link.pending.data, link.pending.matches
+        link.pending, link.gave_up = None, False
 
     def _coarse_beside(self, link: PeerLink, dense: GraphMessage, timings: dict,
                        now: float) -> Hypothesis | None:
@@ -992,7 +1002,7 @@ class Peers:
             _, first = np.unique(ids, return_index=True)
             best = ids[np.sort(first)][: self.cfg.max_request_nodes]
             if len(best) >= self.agent.cfg.min_nodes:   # an answer on fewer would be refused
-                link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
+                link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best), reg.node_matches)
         return self._send_wanted(link, now)
 
     def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
@@ -1000,15 +1010,18 @@ class Peers:
         yet exchanged."""
         if link.wanted is None or link.pending is not None:
             return None
-        data, wanted = link.wanted
+        data, wanted, matches = link.wanted
         if data == link.exchanged:      # nothing new to learn from the same two graphs
             return None
         # the points of a confirmed link at hand: new ones would only refine it
         settled = link.confirmed is not None and link.dense_cloud is not None
         interval = self.cfg.min_request_interval_s if settled else self.cfg.search_request_interval_s
-        if (settled and link.peer_id in self.attached) or (link.confirmed is None and link.peer_id in self.placed):
+        grown = self.cfg.refresh_growth > 0 and matches >= self.cfg.refresh_growth * max(link.exchanged_matches, 1)
+        if (settled and link.peer_id in self.attached and not grown) \
+                or (link.confirmed is None and link.peer_id in self.placed):
             # settled: a placed peer whose points are at hand (dropped when its map moved), or
-            # one that other agents' links place through a consistent triangle
+            # one that other agents' links place through a consistent triangle; unless the
+            # maps now match on refresh_growth times the nodes the link's points came from
             interval = max(interval, self.cfg.attached_request_interval_s)
         elif self.cfg.prompt_request and link.prompt and not link.gave_up:
             # a coarse estimate waits for these points: asked as soon as the peer answers again
@@ -1016,7 +1029,7 @@ class Peers:
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
-        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data)
+        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data, matches)
         link.last_request_at, link.prompt = now, False
         self._count("requests")
         return self._request_message(link, link.pending)
