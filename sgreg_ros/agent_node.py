@@ -121,8 +121,9 @@ class AgentNode(SgregNode):
 
     def _answer(self, req) -> None:
         dense, why = self.core.answer_request(req, self.clock_s())
-        if dense is None:
-            return self.refusal(why, key=" ".join(why.split()[:2]))
+        if dense is None:   # one log key per kind of refusal; the agent's own limits at info
+            counter, routine = self.core.last_refusal
+            return self.refusal(why, key=counter, quiet=routine)
         msg = convert.dense_to_msg(dense, self.encoding)
         self.dense_pub.publish(self.auth.sign(msg, self.topic("sgreg/dense")))
 

@@ -22,6 +22,7 @@ from ..maps.level import LevelConfig, Levelling, estimate_level
 from ..maps.scene_graph import GraphConfig, build_scene_graph
 from ..types import InstanceMap, SceneGraph
 from .clock import stamp_ns as _stamp_ns
+from .auth import is_agent_id
 from .messages import DenseRequestMessage, GraphMessage, graph_digest
 
 ANSWER_SLACK = 0.1   # share of dense_min_interval_s a request may come early and be answered
@@ -40,6 +41,10 @@ class AgentConfig:
     dense_answers_per_s: at most this many dense answers per second to all requesters
         together (a token bucket of that size): requests under many names cannot make the
         agent send much more than it receives.
+    max_answer_nodes: a dense request that would be answered with more nodes (one naming more,
+        or an empty one, "all", of a bigger graph) is refused: the budget counts answers, so
+        each must stay small (peers ask for their best matched nodes,
+        PeersConfig.max_request_nodes).
     quiet_after_s / heartbeat_period_s: once the graph has not changed for quiet_after_s, a
         coarse graph goes out only every heartbeat_period_s (peers that join late get the last
         one at once from the transient-local topic; the heartbeat tells the others the agent
@@ -64,6 +69,8 @@ class AgentConfig:
                                         0.0, 3600.0, live=True)
     dense_answers_per_s: float = param(2.0, "dense answers per second to all requesters together",
                                        0.1, 100.0, live=True)
+    max_answer_nodes: int = param(100, "dense requests answered with more nodes than this are "
+                                  "refused", 3, 100_000, live=True)
     quiet_after_s: float = param(20.0, "coarse graphs drop to the heartbeat once the graph is "
                                  "unchanged for this long", 0.0, 3600.0, live=True)
     heartbeat_period_s: float = param(10.0, "coarse graph period while the graph does not change",
@@ -110,6 +117,7 @@ class AgentCore:
         self._changed_at = -np.inf    # when a coarse graph last went out with new content
         self.counters: Counter = Counter()            # refusals and messages sent, by name
         self.refused = 0                              # inputs refused so far (all counters of refuse)
+        self.last_refusal: tuple[str, bool] = ("", False)   # (counter, routine) of the last one
 
     def warm_up(self) -> None:
         """Load the text encoder now: its first use takes seconds, which would otherwise
@@ -120,27 +128,47 @@ class AgentCore:
     def ready(self) -> bool:
         return self.features is not None
 
-    def refuse(self, counter: str, why: str) -> str:
-        """Count a refused input; returns the one-line reason for the log."""
+    def refuse(self, counter: str, why: str, routine: bool = False) -> str:
+        """Count a refused input; returns the one-line reason for the log. routine: a refusal
+        of a well-formed input that the agent's own limits turn away (rate, budget), counted
+        but no sign of trouble (not in `refused`, which the diagnostics warn on)."""
         self.counters[counter] += 1
-        self.refused += 1
+        self.refused += not routine
+        self.last_refusal = (counter, routine)
         return why
 
     def take_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> str | None:
         """A new instance map from the agent's own front end: None when it became the agent's
         map, NotYet (counted as small_map) when its graph has too few nodes to use yet, else the
         one-line reason it was refused (counted): the same sequence again, or a map update_map
-        refuses."""
+        refuses. A sequence lower than the current map's is the front end starting over: the
+        old map is dropped first (front_end_restarts), whether or not the new one is usable."""
         if self.ready and map_sequence == self.map_sequence:
             return self.refuse("duplicate_map", f"instance map {map_sequence} received twice; ignored")
+        restarted = self.ready and map_sequence < self.map_sequence
+        if restarted:
+            # the front end started over (its sequence went back, its map likely in a new frame):
+            # the old graph must not go on standing for this map, not even until the new one is
+            # big enough to use
+            was = self.map_sequence
+            self.forget_map()
+            self.counters["front_end_restarts"] += 1
         try:
             self.update_map(imap, map_sequence, stamp_ns)
         except SmallMapError as exc:
             self.counters["small_map"] += 1
+            if restarted:
+                return NotYet(f"instance map {map_sequence} after {was}: the front end restarted, "
+                              f"the old map is dropped; {exc}: not registered until it holds more")
             return NotYet(f"{exc}: not registered until it holds more")
         except AgentInputError as exc:
             return self.refuse("bad_instance_map", f"instance map {map_sequence} refused: {exc}")
         return None
+
+    def forget_map(self) -> None:
+        """No map any more: nothing is sent or answered until the next usable one."""
+        self.features, self.graph, self.digest, self._reference = None, None, "", None
+        self.map_sequence, self.stamp_ns, self.level = 0, 0, Levelling()
 
     def update_map(self, imap: InstanceMap, map_sequence: int, stamp_ns: int) -> SceneGraph:
         """Rebuild graph and features from a new instance map; raises AgentInputError."""
@@ -242,8 +270,9 @@ class AgentCore:
         Returns (message, "") or (None, one-line reason, counted): a request for another agent,
         from other weights, before any map, or within dense_min_interval_s (less ANSWER_SLACK
         of it) of the last answer to the same requester is not answered."""
-        if not req.from_agent or req.from_agent == self.cfg.name or len(req.node_ids) > 100_000:
-            return None, self.refuse("bad_request", f"dense request from {req.from_agent!r} for "
+        if len(req.from_agent) > 64 or not is_agent_id(req.from_agent) or req.from_agent == self.cfg.name \
+                or len(req.node_ids) > 100_000:
+            return None, self.refuse("bad_request", f"dense request from {req.from_agent[:64]!r} for "
                                      f"{len(req.node_ids)} nodes refused")
         if req.to_agent != self.cfg.name:
             return None, self.refuse("request_not_for_me", f"dense request for '{req.to_agent}' on "
@@ -254,20 +283,28 @@ class AgentCore:
         if not self.ready:
             return None, self.refuse("request_before_map", f"dense request from {req.from_agent} "
                                      "before any map; not answered")
+        asked = np.isin(self.features.node_ids, np.asarray(req.node_ids, np.int64)).sum() \
+            if len(req.node_ids) else len(self.features.node_ids)
+        if asked > self.cfg.max_answer_nodes:
+            return None, self.refuse("request_too_large", f"dense request {req.sequence} from "
+                                     f"{req.from_agent} for {asked} nodes (max_answer_nodes="
+                                     f"{self.cfg.max_answer_nodes}); not answered")
         if now - self._last_answer.get(req.from_agent, -np.inf) < \
                 (1.0 - ANSWER_SLACK) * self.cfg.dense_min_interval_s:
             return None, self.refuse("request_rate_limited", f"dense request {req.sequence} from "
                                      f"{req.from_agent} within {self.cfg.dense_min_interval_s} s of the "
-                                     "last answer; not answered")
+                                     "last answer; not answered", routine=True)
         rate = self.cfg.dense_answers_per_s
         tokens, then = self._budget
         tokens = min(max(rate, 1.0), tokens + (now - then) * rate)
         if tokens < 1.0:
             return None, self.refuse("request_over_budget", f"dense request {req.sequence} from "
-                                     f"{req.from_agent}: over the budget of {rate:g} answers/s; not answered")
+                                     f"{req.from_agent}: over the budget of {rate:g} answers/s; not answered",
+                                     routine=True)
         self._budget = (tokens - 1.0, now)
-        if len(self._last_answer) > 1000:    # forget requesters of long ago: bounded memory
-            self._last_answer = {k: t for k, t in self._last_answer.items() if now - t < 3600}
+        if len(self._last_answer) > 64:    # only the last interval matters: bounded memory
+            self._last_answer = {k: t for k, t in self._last_answer.items()
+                                 if now - t < self.cfg.dense_min_interval_s}
         self._last_answer[req.from_agent] = now
         self.counters["dense_sent"] += 1
         return self.dense_message(self.counters["dense_sent"], req.node_ids, req.from_agent,

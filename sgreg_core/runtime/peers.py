@@ -335,11 +335,16 @@ class PeerLink:
 
 
 def check_request_size(cfg: PeersConfig, agent: AgentConfig) -> None:
-    """ValueError when no dense request could ever go out: a request names at most
-    max_request_nodes nodes, and an answer on fewer than min_nodes would be refused."""
+    """ValueError when no dense request could ever go out, or be answered: a request names at
+    most max_request_nodes nodes, an answer on fewer than min_nodes would be refused, and one on
+    more than max_answer_nodes is refused by an agent run with these settings."""
     if cfg.max_request_nodes < agent.min_nodes:
         raise ValueError(f"peers: max_request_nodes ({cfg.max_request_nodes}) must not be below "
                          f"min_nodes ({agent.min_nodes}): no dense request would ever be sent")
+    if cfg.max_request_nodes > agent.max_answer_nodes:
+        raise ValueError(f"peers: max_request_nodes ({cfg.max_request_nodes}) must not exceed "
+                         f"max_answer_nodes ({agent.max_answer_nodes}): peers run as this agent "
+                         "would refuse every full request")
 
 
 class Peers:

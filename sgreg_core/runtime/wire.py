@@ -21,9 +21,15 @@ def pack_features(x: np.ndarray, encoding: int) -> tuple[bytes, np.ndarray]:
     x = np.asarray(x, dtype=np.float32)
     if x.ndim != 2:
         raise WireError(f"features must be (n, d), got shape {x.shape}")
+    # every receiver refuses non-finite features: the sender is the one to say why
+    if not np.isfinite(x).all():
+        raise WireError("features hold NaN or inf (the network's output); not sent")
     if encoding == FLOAT32:
         return x.astype("<f4").tobytes(), np.zeros(0, np.float32)
     if encoding == FLOAT16:
+        if x.size and np.abs(x).max() > np.finfo(np.float16).max:
+            raise WireError(f"features reach {np.abs(x).max():.3g}, beyond float16 (65504): "
+                            "send them as float32 or int8")
         return x.astype("<f2").tobytes(), np.zeros(0, np.float32)
     if encoding == INT8:
         scale = np.abs(x).max(axis=1) / 127.0

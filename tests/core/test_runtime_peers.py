@@ -1134,6 +1134,22 @@ def test_a_map_too_small_to_register_is_waited_out_not_refused(model):
     assert agent.map_sequence == 2 and agent.counters["small_map"] == 2 and agent.refused == 0
 
 
+def test_a_front_end_that_starts_over_drops_the_old_map(model):
+    """Its sequence goes back (and its first maps are small): the old graph must not go on
+    standing for the agent's map, sent on every heartbeat, nor block the new sequence."""
+    scene = generate_scene(1, SynthConfig(rooms=1))
+    first = scene.instance == scene.instance[scene.instance > 0][0]
+    small = InstanceMap(points=scene.points[first], instance=scene.instance[first], labels=scene.labels)
+    agent = AgentCore(AgentConfig(name="a"), model)
+    assert agent.take_map(scene, 57, 1_000_000_000) is None and agent.ready
+    why = agent.take_map(small, 0, 2_000_000_000)
+    assert isinstance(why, NotYet) and "restarted" in why and not agent.ready
+    assert not agent.coarse_due(100.0) and agent.counters["front_end_restarts"] == 1
+    assert agent.take_map(small, 1, 3_000_000_000) is not None      # still waiting, no refusal
+    assert agent.take_map(scene, 2, 4_000_000_000) is None and agent.map_sequence == 2
+    assert agent.refused == 0
+
+
 def test_no_dense_request_for_graphs_already_exchanged(model, graphs):
     """The same two graphs give the same dense estimate: once answered, they are not asked for
     again; a changed map is, once the interval allows (on_tick asks for a held-back wish)."""
@@ -1358,6 +1374,29 @@ def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, gra
     assert est.verified
 
 
+def test_dense_requests_from_no_agent_or_for_too_many_nodes_are_not_answered(model, graphs):
+    """A requester's name must be an agent id (it is kept, and echoed in the answer); an answer
+    larger than max_answer_nodes is refused (the budget counts answers, not bytes); and what the
+    agent remembers of requesters stays bounded."""
+    from sgreg_core.runtime.messages import DenseRequestMessage
+    b = make_agents(model, graphs)[1]
+    n = b.graph.num_nodes
+
+    def ask(who, now, ids=np.zeros(0, np.int64)):
+        return b.answer_request(DenseRequestMessage(who, "b", 1, 1, b.weights_id, ids), now)
+
+    assert ask("x" * 11_000, 1.0)[0] is None and ask("a/../c", 1.0)[0] is None
+    assert b.counters["bad_request"] == 2
+    b.cfg = AgentConfig(name="b", max_answer_nodes=n - 1, dense_answers_per_s=100.0)
+    msg, why = ask("a", 2.0)                                  # "all nodes"
+    assert msg is None and "max_answer_nodes" in why and b.counters["request_too_large"] == 1
+    msg, _ = ask("a", 2.0, b.features.node_ids[:3])
+    assert msg is not None and msg.num_nodes == 3
+    for k in range(300):
+        ask(f"r{k}", 10.0 + k * 0.02, b.features.node_ids[:3])
+    assert len(b._last_answer) <= 65
+
+
 def test_dense_answers_are_rate_limited_per_requester_and_overall(model, graphs):
     """One answer per requester per dense_min_interval_s, a request on a timer of that same
     period answered despite jitter; many requesters together stay within the token budget."""
@@ -1376,3 +1415,4 @@ def test_dense_answers_are_rate_limited_per_requester_and_overall(model, graphs)
     assert ask("c", 10.96)[0] is not None                 # another requester: its own interval
     msg, why = ask("d", 10.97)                            # but not past the budget of all
     assert msg is None and b.counters["request_over_budget"] == 1
+    assert b.refused == 0       # the agent's own limits at work, no sign of trouble to warn on

@@ -42,8 +42,25 @@ def test_mismatched_payload_is_refused(n, dim, encoding, scales):
 
 
 def test_nan_features_are_refused():
+    """By the receiver, whatever a (forged or broken) sender packed."""
     x = np.ones((3, 4), np.float32)
     x[1, 2] = np.nan
-    payload, _ = pack_features(x, FLOAT32)
     with pytest.raises(WireError, match="NaN"):
-        unpack_features(payload, 3, 4, FLOAT32)
+        unpack_features(x.astype("<f4").tobytes(), 3, 4, FLOAT32)
+
+
+@pytest.mark.parametrize("encoding", [FLOAT32, FLOAT16, INT8])
+def test_features_no_receiver_would_take_are_refused_by_the_sender(encoding):
+    """Non-finite features (and, as float16, ones beyond its range, which become inf) would be
+    refused by every peer without the sender knowing: the sender says why instead. int8 would
+    even turn NaN into 0, features the receiver takes."""
+    bad = np.array([[0.5, np.nan, 1.0]], np.float32)
+    with pytest.raises(WireError, match="NaN or inf"):
+        pack_features(bad, encoding)
+    big = np.array([[7e4, 1.0, 0.0]], np.float32)
+    if encoding == FLOAT16:
+        with pytest.raises(WireError, match="beyond float16"):
+            pack_features(big, encoding)
+    else:
+        payload, scales = pack_features(big, encoding)
+        assert np.isfinite(unpack_features(payload, 1, 3, encoding, scales)).all()
