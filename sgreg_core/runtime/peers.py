@@ -422,10 +422,9 @@ class Peers:
         estimate says so before the next one)."""
         if peer == self.agent.cfg.name:
             return False
-        held = self._witnesses.get(peer, {})
         withdrawn = False
         if reason == "contradicted":
-            held.clear()
+            self._take_back(peer, "confirmed", "dense")
             link = self.links.get(peer)
             if link is not None and link.confirmed is not None and link.by_peer:
                 # the word it was confirmed by is taken back: it stands on this agent's own
@@ -437,12 +436,10 @@ class Peers:
                                now)
                 withdrawn = True
         elif link_state != "confirmed" or reason == "disputed_by_cycles":
-            held.pop("confirmed", None)
+            self._take_back(peer, "confirmed")
         passed = verified or (mode == "dense" and reason in ("ok", "awaiting_confirmation"))
         if mode == "dense" and not passed:    # its newer points no longer bear the older estimate out
-            held.pop("dense", None)
-        if peer in self._witnesses and not held:
-            del self._witnesses[peer]     # the eviction below ranks peers by their latest witness
+            self._take_back(peer, "dense")
         if not passed:
             return withdrawn
         if not is_rigid(T_peer_agent):   # the ROS layer decodes rigid ones only
@@ -961,11 +958,18 @@ class Peers:
         link.by_peer = False
         # the peer's confirmed link heard before may rest on this agent's word alone (it was
         # confirmed by it): only what the peer says from now on may vouch for the next link
-        held = self._witnesses.get(link.peer_id, {})
-        held.pop("confirmed", None)
-        if not held:     # the eviction ranks peers by their latest witness: none left, no entry
-            self._witnesses.pop(link.peer_id, None)
+        self._take_back(link.peer_id, "confirmed")
         self._await_dense(link)
+
+    def _take_back(self, peer: str, *kinds: str) -> None:
+        """The peer's word of these kinds no longer counts; a peer left with none has no entry
+        (the eviction in on_peer_result ranks peers by their latest witness)."""
+        held = self._witnesses.get(peer)
+        if held is not None:
+            for kind in kinds:
+                held.pop(kind, None)
+            if not held:
+                del self._witnesses[peer]
 
     def _await_dense(self, link: PeerLink) -> None:
         """A new coarse candidate asks for the peer's points promptly (prompt_request): only a
