@@ -36,8 +36,10 @@ Public API:
     build_spec(bag_spec, spec) -> the make-bag settings of a job (each value as its field's type)
     missed(frames) -> dict        registrable frames not verified: a wrong estimate, a right one
                                   the verdict refused, or one the runtime's rules held (RUNTIME_RULES)
+    out_of_reach(frames, bars) -> int    registrable frames that no link rule could have verified
+                                  on these estimates at these confidence bars (Bars)
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
-    summarize(results, suite) -> dict     rows: overall, held-out and training rooms, single /
+    summarize(results, suite, bars=None) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
     format_summary(summary) -> str
     reliability(frames, bins) -> dict    stated confidence against observed correctness
@@ -303,13 +305,47 @@ def missed(frames: list[dict]) -> dict:
     return {cause: dict(c.most_common()) for cause, c in out.items()}
 
 
+@dataclass(frozen=True)
+class Bars:
+    """The confidences a run's estimates had to reach: verdict, the lower of the dense and
+    coarse verdicts' min_confidence; vouched, PeersConfig.vouched_min_confidence (the peer's
+    confirmed link vouches down to it)."""
+    verdict: float
+    vouched: float
+
+
+def out_of_reach(frames: list[dict], bars: Bars) -> int:
+    """The registrable frames that no verdict at these bars and no link rule could have verified
+    on these estimates: in each pair of agents nothing is verified before the first right estimate
+    of either direction that reaches bars.verdict (a first link rests on one; the peer's word is
+    only ever such an estimate), and a direction nothing before its own first right estimate that
+    reaches bars.vouched. So 1 - out_of_reach / registrable bounds from above what any choice of
+    rules reaches with this estimator (other rules ask for points at other times, so it bounds
+    these estimates, not every run): what is left below the bound is the rules' cost, what lies
+    above it the estimator's limit."""
+    links: dict[tuple, list[dict]] = {}
+    for f in frames:
+        links.setdefault((f["agent"], f["peer"]), []).append(f)
+
+    def first(fs, bar):
+        return min((f["t"] for f in fs if f["correct"] and f["confidence"] >= bar), default=np.inf)
+
+    n = 0
+    for (agent, peer), fs in links.items():
+        pair_first = min(first(fs, bars.verdict), first(links.get((peer, agent), []), bars.verdict))
+        start = max(pair_first, first(fs, bars.vouched))
+        n += sum(1 for f in fs if f.get("registrable") and f["t"] < start)
+    return n
+
+
 def _median(values) -> float | None:
     v = [x for x in values if x is not None and np.isfinite(x)]
     return float(np.median(v)) if v else None
 
 
-def _row(results: list[dict]) -> dict:
-    """One summary row over the bags' results (frames pooled)."""
+def _row(results: list[dict], bars: Bars | None = None) -> dict:
+    """One summary row over the bags' results (frames pooled); with bars, the registrable frames
+    out of reach of any rule (out_of_reach, bag by bag)."""
     frames = [f for r in results for f in r["frames"]]
     reg = [f for f in frames if f.get("registrable")]
     links = [link for r in results for link in r.get("links", {}).values()]
@@ -339,6 +375,7 @@ def _row(results: list[dict]) -> dict:
         "dense_latency_ms": _median(f.get("total_ms") for f in frames if f.get("mode") == "dense"),
         "dense_requests": _requests(results),
         "missed": missed(frames),
+        "out_of_reach": None if bars is None else sum(out_of_reach(r["frames"], bars) for r in results),
     }
 
 
@@ -355,8 +392,9 @@ def _requests(results: list[dict]) -> dict | None:
     return {name: int(total[key]) for name, key in REQUEST_COUNTERS.items()}
 
 
-def summarize(results: dict[str, dict], suite: Suite) -> dict:
-    """results: bag name -> replay report (with frames and links)."""
+def summarize(results: dict[str, dict], suite: Suite, bars: Bars | None = None) -> dict:
+    """results: bag name -> replay report (with frames and links); bars: the run's confidence
+    bars, for out_of_reach."""
     jobs = {j.name: j for j in suite.jobs if j.name in results}
     groups: dict[str, list[str]] = {"all": list(jobs)}
     held = [n for n, j in jobs.items() if j.room in suite.held_out]
@@ -375,9 +413,10 @@ def summarize(results: dict[str, dict], suite: Suite) -> dict:
         for walk in walks:
             groups[f"walk {walk}"] = [n for n, j in jobs.items() if j.walk == walk]
     return {"suite": suite.name,
-            "rows": {g: _row([results[n] for n in names]) for g, names in groups.items()
+            "bars": None if bars is None else {"verdict": bars.verdict, "vouched": bars.vouched},
+            "rows": {g: _row([results[n] for n in names], bars) for g, names in groups.items()
                      if names or g == "all"},     # a run of held-out bags only (--only) has no others
-            "bags": {n: {**_row([results[n]]), "room": j.room, "capture": j.capture,
+            "bags": {n: {**_row([results[n]], bars), "room": j.room, "capture": j.capture,
                          "walk": j.walk, "seed": j.seed} for n, j in jobs.items()}}
 
 
@@ -422,6 +461,13 @@ def format_summary(summary: dict) -> str:
             return f"{n}" + (f" ({', '.join(f'{r} {k}' for r, k in miss[cause].items())})" if n else "")
         text += "\nregistrable frames not verified:" + "".join(
             f"\n  {label}: {said(cause)}" for cause, label in MISSED_LABELS.items())
+    row = summary["rows"]["all"]
+    if row.get("out_of_reach") is not None and row["registrable_frames"]:
+        bars, n = summary["bars"], row["out_of_reach"]
+        text += (f"\nat most {_pct(1 - n / row['registrable_frames'])} over registrable frames with these "
+                 f"estimates, whatever the link rules: {n} came before any right estimate of their pair "
+                 f"at the verdict's confidence ({bars['verdict']:g}), or before their own direction's first "
+                 f"right one at the confidence the peer's word vouches for ({bars['vouched']:g})")
     return text
 
 

@@ -6,8 +6,8 @@ import pytest
 
 from sgreg_cli.commands.make_bag import BagSpec
 
-from sgreg_core.bench.replay_suite import (BagJob, ResultCache, Suite, SuiteError, format_summary,
-                                           load_suite, missed, summarize)
+from sgreg_core.bench.replay_suite import (Bars, BagJob, ResultCache, Suite, SuiteError, format_summary,
+                                           load_suite, missed, out_of_reach, summarize)
 
 SUITES = Path(__file__).resolve().parents[2] / "config" / "suites"
 
@@ -315,3 +315,30 @@ def test_a_bag_rerecorded_under_the_same_name_is_not_taken_for_the_cached_one(tm
         f.seek(1000)
         f.write(b"\xff" * 8)
     assert _bag_digest(tmp_path) != before
+
+
+def test_frames_out_of_reach_of_any_rule_come_before_the_first_right_estimate_at_the_bars():
+    """A pair's first link rests on a right estimate at the verdict's bar, in either direction;
+    a direction may then be vouched for down to its own first right estimate at the lower bar.
+    Wrong estimates, however confident, open nothing; frames not registrable are not counted."""
+    def f(agent, t, correct, confidence, registrable=True):
+        peer = "b" if agent == "a" else "a"
+        return {**frame(correct, False, registrable, confidence), "agent": agent, "peer": peer, "t": t}
+
+    frames = [f("a", 0.5, False, 0.95, registrable=False),  # before the maps share 3 objects: no miss
+              f("a", 1.0, False, 0.99),     # wrong, however sure
+              f("a", 2.0, True, 0.6),       # reachable once the pair has a link (b's at 1.5)
+              f("a", 3.0, True, 0.95),
+              f("b", 1.2, True, 0.8),       # right, but below the bar and before any link
+              f("b", 1.5, True, 0.92),      # the pair's first right estimate at the bar
+              f("b", 2.5, True, 0.4)]
+    bars = Bars(verdict=0.9, vouched=0.5)
+    assert out_of_reach(frames, bars) == 2          # a at 1.0, b at 1.2
+    assert out_of_reach(frames, Bars(verdict=0.9, vouched=0.9)) == 3    # a must wait for 3.0
+    assert out_of_reach(frames, Bars(verdict=0.7, vouched=0.5)) == 1    # b's 1.2 passes now
+    assert out_of_reach([fr for fr in frames if fr["agent"] == "a"], bars) == 2    # a alone: its 3.0
+    suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
+    summary = summarize({"b": report(frames, 0, {})}, suite, bars)
+    assert summary["rows"]["all"]["out_of_reach"] == 2 and summary["bags"]["b"]["out_of_reach"] == 2
+    assert "at most 66.7 % over registrable frames with these estimates" in format_summary(summary)
+    assert summarize({"b": report(frames, 0, {})}, suite)["rows"]["all"]["out_of_reach"] is None

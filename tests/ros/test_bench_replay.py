@@ -53,18 +53,23 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert json.loads((out / "config.json").read_text())["weights_id"]
     assert "success (registrable)" in stdout and "suite tiny" in stdout
     assert row["dense_requests"]["sent"] > 0 and "dense requests:" in stdout
+    # the bound any link rule meets on these estimates, at the bars the nodes read (shipped file)
+    assert summary["bars"] == {"verdict": 0.9, "vouched": 0.5}
+    assert 0 <= row["out_of_reach"] <= row["registrable_frames"] and "whatever the link rules" in stdout
 
     again = bench(suite, out)                     # nothing changed: every result is cached
     assert again.count(": cached") == 2
     # the offline backend replays the same bags in-process; --set changes its settings
-    offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false")
+    lower = "peers.pipeline.coarse_pose.verdict.min_confidence=0.8"
+    offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false", "--set", lower)
     assert "suite tiny" in offline and "dense requests:" in offline
+    assert json.loads((tmp_path / "off" / "results.json").read_text())["bars"] == {"verdict": 0.8, "vouched": 0.5}
     off = json.loads((tmp_path / "off" / "results.json").read_text())["rows"]["all"]["dense_requests"]
     assert off["sent"] > 0 and off["refused_over_budget"] == 0      # two agents never reach the budget
     # a bag whose ground truth changed under the same name is replayed, not taken from the cache
     gt_file = tmp_path / "bags" / names[0] / "ground_truth.json"
     gt_file.write_text(json.dumps(json.loads(gt_file.read_text()), indent=1))
-    again = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false")
+    again = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false", "--set", lower)
     assert again.count(": cached") == 1 and f"{names[1]}: cached" in again
     bad = subprocess.run(SGREG + ["bench-replay", str(suite), "--set", "peers.confirm=false"],
                          capture_output=True, text=True, timeout=60)
