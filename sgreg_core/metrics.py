@@ -50,7 +50,12 @@ def registration_success(src_points: np.ndarray, T_est: np.ndarray, T_gt: np.nda
     return registration_rmse(src_points, T_est, T_gt) < max_rmse
 
 
-def two_agent_success(T_est: np.ndarray, T_gt: np.ndarray, max_rte: float = 0.5, max_rre: float = 5.0) -> bool:
+# the paper's two-agent criterion: an estimate within both is right
+SUCCESS_RTE_M, SUCCESS_RRE_DEG = 0.5, 5.0
+
+
+def two_agent_success(T_est: np.ndarray, T_gt: np.ndarray, max_rte: float = SUCCESS_RTE_M,
+                      max_rre: float = SUCCESS_RRE_DEG) -> bool:
     return rte(T_est, T_gt) < max_rte and rre(T_est, T_gt) < max_rre
 
 

@@ -159,22 +159,20 @@ def _made_with(path: Path) -> dict | None:
     return config if isinstance(config, dict) and "scan" in config and set(config) <= known else None
 
 
-def _bars(backend: str, offline_cfg: dict, params: bytes):
-    """The confidence bars the run's estimates had to reach (replay_suite.Bars, for the bound
+def _peers_word(backend: str, offline_cfg: dict, params: bytes):
+    """What the run's link rules let the peer's word do (replay_suite.PeersWord, for the bound
     out_of_reach): the offline settings, or those agent a's registration node reads from the
-    parameter file (its defaults where the file sets none)."""
-    from sgreg_core.bench.replay_suite import Bars
-    from sgreg_core.pose.verdict import VerdictConfig
+    parameter file (the PeersConfig defaults where it sets none; a suite runs every agent on
+    one file)."""
+    from sgreg_core.bench.replay_suite import PeersWord
     from sgreg_core.runtime.peers import PeersConfig
     from sgreg_ros.params import parameter_values_for
 
+    names = [f.name for f in fields(PeersWord)]
     if backend == "offline":
-        peers = offline_cfg["peers"]
-        return Bars(min(peers["pipeline"][k]["verdict"]["min_confidence"] for k in ("pose", "coarse_pose")),
-                    peers["vouched_min_confidence"])
+        return PeersWord(**{k: float(offline_cfg["peers"][k]) for k in names})
     values = parameter_values_for(params.decode(), "/a/registration") if params else {}
-    return Bars(float(values.get("min_confidence", VerdictConfig().min_confidence)),
-                float(values.get("vouched_min_confidence", PeersConfig().vouched_min_confidence)))
+    return PeersWord(**{k: float(values.get(k, getattr(PeersConfig(), k))) for k in names})
 
 
 def _offline_config(overrides: list[str]):
@@ -352,7 +350,7 @@ def run(args: argparse.Namespace) -> int:
         log(f"{i + 1}/{len(jobs)} {job.name}: {report['query_frames']} frames, success over "
             f"registrable {'-' if sr is None else f'{sr:.0%}'}, wrong verified "
             f"{report['wrong_verified']} ({time.monotonic() - t0:.0f} s; about {eta / 60:.0f} min left)")
-    summary = summarize(results, suite, _bars(args.backend, offline_cfg, params))
+    summary = summarize(results, suite, _peers_word(args.backend, offline_cfg, params))
     frames = [f for r in results.values() for f in r["frames"]]
     summary["reliability"] = reliability(frames)
     summary["context"] = context

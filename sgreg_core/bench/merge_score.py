@@ -18,12 +18,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import invert_transform
-from ..metrics import rre, rte
+from ..metrics import SUCCESS_RRE_DEG, SUCCESS_RTE_M, rre, rte
 from ..runtime.clock import seconds_to_ns
 from ..runtime.merge import MergeConfig, MergeResult, Merger
 from .replay_score import ground_truth
 
-WRONG_M, WRONG_DEG = 0.5, 5.0
+WRONG_M, WRONG_DEG = SUCCESS_RTE_M, SUCCESS_RRE_DEG
 
 
 def merge_report(records, T_scene_map: dict, poses: dict | None = None, hold_s: float = 1.0,

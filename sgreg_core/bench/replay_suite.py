@@ -36,10 +36,10 @@ Public API:
     build_spec(bag_spec, spec) -> the make-bag settings of a job (each value as its field's type)
     missed(frames) -> dict        registrable frames not verified: a wrong estimate, a right one
                                   the verdict refused, or one the runtime's rules held (RUNTIME_RULES)
-    out_of_reach(frames, bars) -> int    registrable frames that no link rule could have verified
-                                  on these estimates at these confidence bars (Bars)
+    out_of_reach(frames, word) -> int    registrable frames no link rule could have published
+                                  right from these estimates as the verdict judged them
     room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
-    summarize(results, suite, bars=None) -> dict     rows: overall, held-out and training rooms, single /
+    summarize(results, suite, word=None) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
     format_summary(summary) -> str
     reliability(frames, bins) -> dict    stated confidence against observed correctness
@@ -53,12 +53,13 @@ import json
 import re
 import typing
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..config import as_hinted, check_types, from_dict, to_dict
+from ..metrics import SUCCESS_RRE_DEG, SUCCESS_RTE_M
 from ..simulation.synth import SynthConfig
 
 SCENE = re.compile(r"(scene\d{4})_\d{2}")
@@ -306,34 +307,53 @@ def missed(frames: list[dict]) -> dict:
 
 
 @dataclass(frozen=True)
-class Bars:
-    """The confidences a run's estimates had to reach: verdict, the lower of the dense and
-    coarse verdicts' min_confidence; vouched, PeersConfig.vouched_min_confidence (the peer's
-    confirmed link vouches down to it)."""
-    verdict: float
-    vouched: float
+class PeersWord:
+    """What the link rules let the peer's confirmed link do (PeersConfig fields of the same
+    names): vouch for an estimate the verdict refused for its confidence alone, at no less than
+    vouched_min_confidence, when the two agree within agree_m / agree_deg."""
+    vouched_min_confidence: float
+    agree_m: float
+    agree_deg: float
 
 
-def out_of_reach(frames: list[dict], bars: Bars) -> int:
-    """The registrable frames that no verdict at these bars and no link rule could have verified
-    on these estimates: in each pair of agents nothing is verified before the first right estimate
-    of either direction that reaches bars.verdict (a first link rests on one; the peer's word is
-    only ever such an estimate), and a direction nothing before its own first right estimate that
-    reaches bars.vouched. So 1 - out_of_reach / registrable bounds from above what any choice of
-    rules reaches with this estimator (other rules ask for points at other times, so it bounds
-    these estimates, not every run): what is left below the bound is the rules' cost, what lies
-    above it the estimator's limit."""
+# the runtime's reasons for holding an estimate that passed the verdict
+HELD_AFTER_VERDICT = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles")
+
+
+def out_of_reach(frames: list[dict], word: PeersWord) -> int:
+    """The registrable frames that no link rule could have published right from this run's
+    estimates, as the verdict judged them. A link first rests on an estimate that passed the
+    verdict, and so does the peer's word, which may agree with a right estimate from up to
+    agree_m / agree_deg beyond the criterion; so in each pair of agents nothing is published
+    before the first estimate of either direction that passed the verdict that near the truth.
+    A direction then publishes right only from its own first right estimate that passed, or that
+    the verdict refused for its confidence alone at no less than vouched_min_confidence (what
+    the peer's word vouches for). Frames before that are out of reach. 1 - out_of_reach /
+    registrable bounds from above the success any link rules reach with these estimates, had
+    every reachable frame been published at once (rules that ask for points at other times make
+    other estimates, so it bounds this run, not every run): what lies below it is the rules'
+    cost, what lies above it takes estimates that are right sooner."""
     links: dict[tuple, list[dict]] = {}
     for f in frames:
         links.setdefault((f["agent"], f["peer"]), []).append(f)
 
-    def first(fs, bar):
-        return min((f["t"] for f in fs if f["correct"] and f["confidence"] >= bar), default=np.inf)
+    def passed(f):
+        return f["reason"] == "ok" or f["reason"] in HELD_AFTER_VERDICT
+
+    def first(fs, take):
+        return min((f["t"] for f in fs if take(f)), default=np.inf)
+
+    def near(f):
+        return f["rte"] < SUCCESS_RTE_M + word.agree_m and f["rre"] < SUCCESS_RRE_DEG + word.agree_deg
+
+    def own(f):
+        return f["correct"] and (passed(f) or (f["reason"] == "low_confidence"
+                                               and f["confidence"] >= word.vouched_min_confidence))
 
     n = 0
     for (agent, peer), fs in links.items():
-        pair_first = min(first(fs, bars.verdict), first(links.get((peer, agent), []), bars.verdict))
-        start = max(pair_first, first(fs, bars.vouched))
+        pair = first(fs + links.get((peer, agent), []), lambda f: passed(f) and near(f))
+        start = max(pair, first(fs, own))
         n += sum(1 for f in fs if f.get("registrable") and f["t"] < start)
     return n
 
@@ -343,9 +363,9 @@ def _median(values) -> float | None:
     return float(np.median(v)) if v else None
 
 
-def _row(results: list[dict], bars: Bars | None = None) -> dict:
-    """One summary row over the bags' results (frames pooled); with bars, the registrable frames
-    out of reach of any rule (out_of_reach, bag by bag)."""
+def _row(results: list[dict], word: PeersWord | None = None) -> dict:
+    """One summary row over the bags' results (frames pooled); with the peer's word, the
+    registrable frames out of reach of any link rule (out_of_reach, bag by bag)."""
     frames = [f for r in results for f in r["frames"]]
     reg = [f for f in frames if f.get("registrable")]
     links = [link for r in results for link in r.get("links", {}).values()]
@@ -375,7 +395,7 @@ def _row(results: list[dict], bars: Bars | None = None) -> dict:
         "dense_latency_ms": _median(f.get("total_ms") for f in frames if f.get("mode") == "dense"),
         "dense_requests": _requests(results),
         "missed": missed(frames),
-        "out_of_reach": None if bars is None else sum(out_of_reach(r["frames"], bars) for r in results),
+        "out_of_reach": None if word is None else sum(out_of_reach(r["frames"], word) for r in results),
     }
 
 
@@ -392,9 +412,9 @@ def _requests(results: list[dict]) -> dict | None:
     return {name: int(total[key]) for name, key in REQUEST_COUNTERS.items()}
 
 
-def summarize(results: dict[str, dict], suite: Suite, bars: Bars | None = None) -> dict:
-    """results: bag name -> replay report (with frames and links); bars: the run's confidence
-    bars, for out_of_reach."""
+def summarize(results: dict[str, dict], suite: Suite, word: PeersWord | None = None) -> dict:
+    """results: bag name -> replay report (with frames and links); word: what the run's link
+    rules let the peer's word do, for out_of_reach."""
     jobs = {j.name: j for j in suite.jobs if j.name in results}
     groups: dict[str, list[str]] = {"all": list(jobs)}
     held = [n for n, j in jobs.items() if j.room in suite.held_out]
@@ -413,10 +433,10 @@ def summarize(results: dict[str, dict], suite: Suite, bars: Bars | None = None) 
         for walk in walks:
             groups[f"walk {walk}"] = [n for n, j in jobs.items() if j.walk == walk]
     return {"suite": suite.name,
-            "bars": None if bars is None else {"verdict": bars.verdict, "vouched": bars.vouched},
-            "rows": {g: _row([results[n] for n in names], bars) for g, names in groups.items()
+            "peers_word": None if word is None else asdict(word),
+            "rows": {g: _row([results[n] for n in names], word) for g, names in groups.items()
                      if names or g == "all"},     # a run of held-out bags only (--only) has no others
-            "bags": {n: {**_row([results[n]], bars), "room": j.room, "capture": j.capture,
+            "bags": {n: {**_row([results[n]], word), "room": j.room, "capture": j.capture,
                          "walk": j.walk, "seed": j.seed} for n, j in jobs.items()}}
 
 
@@ -463,11 +483,13 @@ def format_summary(summary: dict) -> str:
             f"\n  {label}: {said(cause)}" for cause, label in MISSED_LABELS.items())
     row = summary["rows"]["all"]
     if row.get("out_of_reach") is not None and row["registrable_frames"]:
-        bars, n = summary["bars"], row["out_of_reach"]
-        text += (f"\nat most {_pct(1 - n / row['registrable_frames'])} over registrable frames with these "
-                 f"estimates, whatever the link rules: {n} came before any right estimate of their pair "
-                 f"at the verdict's confidence ({bars['verdict']:g}), or before their own direction's first "
-                 f"right one at the confidence the peer's word vouches for ({bars['vouched']:g})")
+        reg, n = row["registrable_frames"], row["out_of_reach"]
+        text += (f"\nwithin reach of the link rules: at most {reg - n} of {reg} registrable frames "
+                 f"({100 * (1 - n / reg):.2f} %) with these estimates, each published as soon as a rule "
+                 f"could take it; {n} came before their pair's first estimate to pass the verdict (near "
+                 "the truth), or before their own direction's first right one that passed it or that the "
+                 "peer's word could vouch for (refused for its confidence alone, at "
+                 f"{summary['peers_word']['vouched_min_confidence']:g} or more)")
     return text
 
 

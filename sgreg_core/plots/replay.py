@@ -47,7 +47,7 @@ def plot_replay(score, timeline, out_path, title: str = "") -> None:
 def plot_suite(summary: dict, out_path) -> None:
     """A replay suite at a glance: per bag, its registrable frames by outcome (verified and
     right, then the ones not verified by cause: replay_suite.missed, then wrong verified) with
-    the share any link rule could reach on the bag's estimates (replay_suite.out_of_reach), the
+    the share the link rules could reach with the bag's estimates (replay_suite.out_of_reach), the
     reliability of the stated confidence, and time to first success per bag."""
     import matplotlib
 
@@ -82,7 +82,7 @@ def plot_suite(summary: dict, out_path) -> None:
              for i, n in enumerate(names) if bags[n].get("out_of_reach") is not None and bags[n]["registrable_frames"]]
     if reach:
         axes[0].scatter([x for _, x in reach], [y[i] for i, _ in reach], marker="|", s=60, color="black",
-                        zorder=3, clip_on=False, label="the most any link rule could verify")
+                        zorder=3, clip_on=False, label="within reach of the link rules")
     wrong = np.array([bags[n]["wrong_verified"] for n in names])
     for i in np.flatnonzero(wrong):
         axes[0].text(2, y[i], f"{wrong[i]} wrong verified", va="center", fontsize=7, color="white")
@@ -97,10 +97,11 @@ def plot_suite(summary: dict, out_path) -> None:
     axes[0].set_xlim(0, 100)
     axes[0].set_xlabel("registrable frames [%]")
     overall = summary["rows"]["all"]
-    bound = "" if overall.get("out_of_reach") is None or not overall["registrable_frames"] else \
-        f" (at most {100 * (1 - overall['out_of_reach'] / overall['registrable_frames']):.1f} % with these estimates)"
+    reg = overall["registrable_frames"]
+    bound = "" if overall.get("out_of_reach") is None or not reg else \
+        f" ({reg - overall['out_of_reach']} within reach of the link rules)"
     axes[0].set_title(f"suite {summary['suite']}: {100 * (overall['success_rate_registrable'] or 0):.1f} % "
-                      f"of {overall['registrable_frames']} frames{bound}, {overall['wrong_verified']} wrong verified",
+                      f"of {reg} frames{bound}, {overall['wrong_verified']} wrong verified",
                       fontsize=9, pad=30)
 
     rel = summary.get("reliability")

@@ -1,4 +1,5 @@
 """Replay suite files: expansion into bags, their tags, one-line refusals, and the summary."""
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 
 from sgreg_cli.commands.make_bag import BagSpec
 
-from sgreg_core.bench.replay_suite import (Bars, BagJob, ResultCache, Suite, SuiteError, format_summary,
+from sgreg_core.bench.replay_suite import (BagJob, PeersWord, ResultCache, Suite, SuiteError, format_summary,
                                            load_suite, missed, out_of_reach, summarize)
 
 SUITES = Path(__file__).resolve().parents[2] / "config" / "suites"
@@ -317,28 +318,34 @@ def test_a_bag_rerecorded_under_the_same_name_is_not_taken_for_the_cached_one(tm
     assert _bag_digest(tmp_path) != before
 
 
-def test_frames_out_of_reach_of_any_rule_come_before_the_first_right_estimate_at_the_bars():
-    """A pair's first link rests on a right estimate at the verdict's bar, in either direction;
-    a direction may then be vouched for down to its own first right estimate at the lower bar.
-    Wrong estimates, however confident, open nothing; frames not registrable are not counted."""
-    def f(agent, t, correct, confidence, registrable=True):
-        peer = "b" if agent == "a" else "a"
-        return {**frame(correct, False, registrable, confidence), "agent": agent, "peer": peer, "t": t}
+def test_frames_out_of_reach_of_the_link_rules_come_before_an_estimate_a_rule_could_publish():
+    """A pair's first link rests on an estimate that passed the verdict (near enough the truth to
+    agree with a right one); a direction may then publish right from its own first right
+    estimate that passed, or that the verdict refused for its confidence alone at no less than
+    the confidence the peer's word vouches for. Wrong or otherwise refused estimates open
+    nothing; frames not registrable are not counted."""
+    def f(agent, t, reason, confidence=0.95, off=(0.0, 0.0), registrable=True):
+        rte, rre = off
+        correct = rte < 0.5 and rre < 5.0
+        return {**frame(correct, reason == "ok" and correct, registrable, confidence), "agent": agent,
+                "peer": "b" if agent == "a" else "a", "t": t, "reason": reason, "rte": rte, "rre": rre}
 
-    frames = [f("a", 0.5, False, 0.95, registrable=False),  # before the maps share 3 objects: no miss
-              f("a", 1.0, False, 0.99),     # wrong, however sure
-              f("a", 2.0, True, 0.6),       # reachable once the pair has a link (b's at 1.5)
-              f("a", 3.0, True, 0.95),
-              f("b", 1.2, True, 0.8),       # right, but below the bar and before any link
-              f("b", 1.5, True, 0.92),      # the pair's first right estimate at the bar
-              f("b", 2.5, True, 0.4)]
-    bars = Bars(verdict=0.9, vouched=0.5)
-    assert out_of_reach(frames, bars) == 2          # a at 1.0, b at 1.2
-    assert out_of_reach(frames, Bars(verdict=0.9, vouched=0.9)) == 3    # a must wait for 3.0
-    assert out_of_reach(frames, Bars(verdict=0.7, vouched=0.5)) == 1    # b's 1.2 passes now
-    assert out_of_reach([fr for fr in frames if fr["agent"] == "a"], bars) == 2    # a alone: its 3.0
+    frames = [f("a", 0.5, "ok", off=(2.0, 90.0), registrable=False),  # wrong, passed: opens nothing
+              f("a", 1.0, "ambiguous"),               # right, but refused for a tie
+              f("a", 2.0, "low_confidence", 0.6),     # the peer's word may vouch for it from 1.5
+              f("a", 3.0, "ok"),
+              f("b", 1.2, "low_confidence", 0.8),     # right, refused for its confidence, no link yet
+              f("b", 1.5, "awaiting_confirmation"),   # passed the verdict: opens the pair
+              f("b", 2.5, "low_confidence", 0.4)]
+    word = PeersWord(vouched_min_confidence=0.5, agree_m=0.3, agree_deg=3.0)
+    assert out_of_reach(frames, word) == 2          # a at 1.0, b at 1.2
+    assert out_of_reach(frames, replace(word, vouched_min_confidence=0.7)) == 3    # a waits for 3.0
+    assert out_of_reach([fr for fr in frames if fr["agent"] == "a"], word) == 2    # a alone: its 3.0
+    # the peer's word may be off by up to the agreement beyond the criterion, no further
+    near = [*frames[1:5], f("b", 1.5, "ok", off=(0.7, 1.0))]
+    assert out_of_reach(near, word) == 2 and out_of_reach(near, replace(word, agree_m=0.1)) == 4
     suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
-    summary = summarize({"b": report(frames, 0, {})}, suite, bars)
+    summary = summarize({"b": report(frames, 0, {})}, suite, word)
     assert summary["rows"]["all"]["out_of_reach"] == 2 and summary["bags"]["b"]["out_of_reach"] == 2
-    assert "at most 66.7 % over registrable frames with these estimates" in format_summary(summary)
+    assert "at most 4 of 6 registrable frames (66.67 %)" in format_summary(summary)
     assert summarize({"b": report(frames, 0, {})}, suite)["rows"]["all"]["out_of_reach"] is None

@@ -53,17 +53,17 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert json.loads((out / "config.json").read_text())["weights_id"]
     assert "success (registrable)" in stdout and "suite tiny" in stdout
     assert row["dense_requests"]["sent"] > 0 and "dense requests:" in stdout
-    # the bound any link rule meets on these estimates, at the bars the nodes read (shipped file)
-    assert summary["bars"] == {"verdict": 0.9, "vouched": 0.5}
-    assert 0 <= row["out_of_reach"] <= row["registrable_frames"] and "whatever the link rules" in stdout
+    # the bound any link rule meets on these estimates, with the peer's word the nodes read
+    assert summary["peers_word"] == {"vouched_min_confidence": 0.5, "agree_m": 0.3, "agree_deg": 3.0}
+    assert 0 <= row["out_of_reach"] <= row["registrable_frames"] and "within reach of the link rules" in stdout
 
     again = bench(suite, out)                     # nothing changed: every result is cached
     assert again.count(": cached") == 2
     # the offline backend replays the same bags in-process; --set changes its settings
-    lower = "peers.pipeline.coarse_pose.verdict.min_confidence=0.8"
+    lower = "peers.vouched_min_confidence=0.8"
     offline = bench(suite, tmp_path / "off", "--backend", "offline", "--set", "peers.confirm=false", "--set", lower)
     assert "suite tiny" in offline and "dense requests:" in offline
-    assert json.loads((tmp_path / "off" / "results.json").read_text())["bars"] == {"verdict": 0.8, "vouched": 0.5}
+    assert json.loads((tmp_path / "off" / "results.json").read_text())["peers_word"]["vouched_min_confidence"] == 0.8
     off = json.loads((tmp_path / "off" / "results.json").read_text())["rows"]["all"]["dense_requests"]
     assert off["sent"] > 0 and off["refused_over_budget"] == 0      # two agents never reach the budget
     # a bag whose ground truth changed under the same name is replayed, not taken from the cache
