@@ -34,14 +34,12 @@ import numpy as np
 
 from sgreg_cli.bags import instance_maps_in_bag
 from sgreg_core.geometry import invert_transform
-from sgreg_core.metrics import rre, rte
+from sgreg_core.metrics import two_agent_success
 from sgreg_core.net.model import load_model
 from sgreg_core.pipeline import PipelineConfig, build_graphs, node_cloud, reference_cloud, register_graphs
 from sgreg_core.pose import residuals
 from sgreg_core.pose import apply_T
 from sgreg_core.pose.estimator import estimate_pose
-
-RIGHT_M, RIGHT_DEG = 0.5, 5.0     # the replay's bound for a right pose
 
 
 def _outcome(res, T_true) -> dict:
@@ -50,7 +48,7 @@ def _outcome(res, T_true) -> dict:
     T = res.T_levelled if hasattr(res, "T_levelled") else res.T
     return {"reason": res.reason, "confidence": float(res.confidence), "objects": int(res.evidence.objects),
             "fitness": float(res.evidence.fitness), "footprint_share": float(res.evidence.footprint_share),
-            "right": bool(rte(T, T_true) < RIGHT_M and rre(T, T_true) < RIGHT_DEG)}
+            "right": two_agent_success(T, T_true)}
 
 
 def _oracle(src_c, ref_c, scores, groups, src_graph, ref_graph, cfg: PipelineConfig, T_true) -> dict:

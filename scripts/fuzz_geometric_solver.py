@@ -22,11 +22,11 @@ import sys, numpy as np
 sys.path.insert(0, {root!r})
 from scripts.fuzz_geometric_solver import cloud, room
 from sgreg_core.pose.geometric import GeometricConfig, surface_count
-from sgreg_core.pose.verify import voxel_downsample
+from sgreg_core.pose.verify import finite_voxel_downsample
 import kiss_matcher
 small, big = cloud({seed}).astype(np.float32), room(np.random.default_rng(0)).astype(np.float32)
 voxel = GeometricConfig().voxel
-print(surface_count(voxel_downsample(small, voxel), voxel), flush=True)
+print(surface_count(finite_voxel_downsample(small, voxel), voxel), flush=True)
 src, ref = (big, small) if {as_ref} else (small, big)
 kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel)).estimate(src, ref)
 """

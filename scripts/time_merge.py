@@ -21,15 +21,16 @@ import numpy as np
 
 from sgreg_core.bench.machine import describe
 from sgreg_core.geometry import invert_transform
-from sgreg_core.runtime.merge import Link, MergeConfig, from_4dof, merge
+from sgreg_core.geometry import yaw_transform
+from sgreg_core.runtime.merge import Link, MergeConfig, merge
 
 
 def fleet_links(n: int, rng: np.random.Generator) -> list[Link]:
     """Every ordered pair of n agents, whose maps lie up to 30 m apart, linked with 0.03 deg /
     5 mm of noise."""
-    world = [from_4dof(rng.uniform(-np.pi, np.pi), rng.uniform(-30, 30, 3) * (1, 1, 0)) for _ in range(n)]
+    world = [yaw_transform(rng.uniform(-np.pi, np.pi), rng.uniform(-30, 30, 3) * (1, 1, 0)) for _ in range(n)]
     names = [f"r{i:03d}" for i in range(n)]
-    return [Link(names[s], names[d], from_4dof(rng.normal(0, 5e-4), rng.normal(0, 5e-3, 3))
+    return [Link(names[s], names[d], yaw_transform(rng.normal(0, 5e-4), rng.normal(0, 5e-3, 3))
                  @ invert_transform(world[d]) @ world[s], 0.9)
             for s, d in itertools.permutations(range(n), 2)]
 

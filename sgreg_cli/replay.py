@@ -48,8 +48,8 @@ class ReplayConfig:
     overrides: ROS parameters given to every node (e.g. weights_path).
     restart: (agent, seconds): kill that agent's nodes (SIGKILL) that long after the bag starts
         and start them again at once: a robot whose software crashes mid-mission.
-    authenticate: the agents sign and check their messages with a fleet keystore made for the
-        replay (unless overrides name a keystore), as a deployed fleet would."""
+    The agents sign and check their messages with a fleet keystore made for the replay (unless
+    overrides name a keystore), as a deployed fleet would."""
 
     rate: float = 1.0
     tail_s: float = 42.0    # a 20 s window after settle_s: two heartbeat periods
@@ -59,7 +59,6 @@ class ReplayConfig:
     overrides: dict = field(default_factory=dict)
     log_dir: Path | None = None
     restart: tuple[str, float] | None = None
-    authenticate: bool = True
 
 
 @dataclass
@@ -212,7 +211,7 @@ def run_replay(bag: str | Path, cfg: ReplayConfig, log=print) -> ReplayRun:
     origin = (gt or {}).get("t_origin", 0.0)
     overrides = dict(cfg.overrides)
     keys = None
-    if cfg.authenticate and "keystore" not in overrides:
+    if "keystore" not in overrides:
         keys = tempfile.TemporaryDirectory(prefix="sgreg-keys-")
         init_keystore(keys.name, names)
         overrides["keystore"] = keys.name

@@ -3,6 +3,7 @@
 Public API:
     MAX_COORD_M                                  m, the largest coordinate of a map point
     transform_points(T, points) -> (N, 3)        apply a 4x4 rigid transform
+    yaw_rotation(yaw) -> (3, 3)                  rotation about z by `yaw` (rad)
     yaw_transform(yaw, t=(0, 0, 0)) -> (4, 4)    rotation about z by `yaw` (rad) then translation
     invert_transform(T) -> (4, 4)                inverse of a rigid transform
     is_rotation(R) / is_rigid(T) -> bool         a finite 3x3 rotation (det +1) / 4x4 rigid transform
@@ -28,11 +29,16 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
 MAX_COORD_M = 10_000.0   # m, per coordinate: maps are of buildings, not continents
 
 
+def yaw_rotation(yaw: float) -> np.ndarray:
+    """Rotation about +z by `yaw` radians."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def yaw_transform(yaw: float, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     """4x4 transform rotating by `yaw` radians about z, then translating by t."""
-    c, s = np.cos(yaw), np.sin(yaw)
     T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, :3] = yaw_rotation(yaw)
     T[:3, 3] = np.asarray(t, dtype=np.float64)
     return T
 

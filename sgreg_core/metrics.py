@@ -1,7 +1,6 @@
 """Evaluation metrics of the paper (section VII-A2).
 
 Public API:
-    transform_points(T, points), yaw_transform(yaw, t)   re-exported from geometry
     rre(T_est, T_gt) -> float                 relative rotation error, degrees
     rte(T_est, T_gt) -> float                 relative translation error, metres
     registration_rmse(src_points, T_est, T_gt) -> float
@@ -22,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import transform_points, yaw_transform
+from .geometry import transform_points
 
 __all__ = [
-    "transform_points", "yaw_transform", "rre", "rte", "registration_rmse", "registration_success",
+    "rre", "rte", "registration_rmse", "registration_success",
     "two_agent_success", "inlier_ratio", "NodeMatchScore", "node_match_scores",
 ]
 

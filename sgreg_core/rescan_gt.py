@@ -16,10 +16,12 @@ Public API:
     transform_between(pairs, a, b) -> T   T mapping b's points into a's frame, or RescanGTError
                                           saying why there is none (rejected with its reasons,
                                           or no entry)
+    room_of(scan) -> str                  the room a capture is of (what held-out rooms name)
 """
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,3 +92,18 @@ def transform_between(pairs: list[RescanPair], a: str, b: str, path="the pseudo 
         # np.linalg.inv, as make-bag always used: the bags it made stay bit for bit the same
         return p.T if p.src == b else np.linalg.inv(p.T)
     raise RescanGTError(f"{path} has no entry for {a} x {b}")
+
+
+_SCANNET_ROOM = re.compile(r"(scene\d{4})_\d{2}")
+
+
+def room_of(scan: str | Path) -> str:
+    """The room a scan folder is a capture of, by one rule for training splits, benchmark cases
+    and replay suites: 'scannet-picwoon_scene0005_01' -> 'scene0005'; otherwise the folder name
+    less a trailing capture number ('lab_01' -> 'lab'); a name without one is its own room."""
+    name = Path(scan).name
+    m = _SCANNET_ROOM.search(name)
+    if m:
+        return m.group(1)
+    stem, _, capture = name.rpartition("_")
+    return stem if stem and capture.isdigit() else name

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 
-POINT_DTYPE_FIELDS = ("x", "y", "z")
 POINT_STEP = 16  # 3 x float32 + 1 x uint32
 
 

@@ -99,10 +99,7 @@ class RegistrationNode(SgregNode):
             self.merger = Merger(MergeConfig(**pick(MergeConfig, p)), self.name)
             self.peers = Peers(peers_cfg, self.agent, model, log=self.refusal, on_restart=self._forget_peer)
             self.peers.follow(self.merger)
-            self.peers.cfg = replace(self.peers.cfg, merged_tolerance=(self.merger.cfg.cycle_m,
-                                                                      self.merger.cfg.cycle_deg))
             self.tf_pub = self.create_publisher(TFMessage, "/tf", qos.TF)
-            self.result_subs: dict[str, object] = {}
             self.transform_pub = self.create_publisher(TransformStamped, self.topic("sgreg/transform"), qos.RESULTS)
             self.result_pub = self.create_publisher(RegistrationResult, self.topic("sgreg/registration"),
                                                     qos.RESULTS)

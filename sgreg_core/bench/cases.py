@@ -35,7 +35,7 @@ import numpy as np
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve
-from ..rescan_gt import accepted_directions, load_rescan_gt
+from ..rescan_gt import accepted_directions, load_rescan_gt, room_of
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, make_pair, node_iou
 from ..types import InstanceMap
@@ -114,15 +114,6 @@ def _scan(path: str) -> InstanceMap:
     return read_instance_map(path)
 
 
-def _room(scan: str) -> str:
-    """The room of a scan folder: 'scannet-picwoon_scene0005_01' -> 'scene0005', 'scene0005_01'
-    -> 'scene0005'; a name without a capture number is its own room ('myroom' -> 'myroom')."""
-    parts = scan.rsplit("_", 2)
-    if len(parts) == 1 or not parts[-1].isdigit():
-        return scan
-    return parts[-2]
-
-
 def _scans(cfg: CaseConfig) -> list[str]:
     try:
         root = require(cfg.scans_dir, "scans folder")
@@ -155,7 +146,7 @@ def _view_cases(cfg: CaseConfig, scans: list[str], setting: str) -> list[Case]:
         pair = make_pair(_scan(str(resolve(cfg.scans_dir) / scan)),
                          _pair_config(cfg, rng, VIEW_NOISE[setting]), rng)
         out.append(Case(setting, f"{scan}#{k}", pair.src, pair.ref, pair.T_src_ref,
-                        pair.gt_node_pairs, pair.gt_iou, _room(scan) in cfg.held_out_rooms))
+                        pair.gt_node_pairs, pair.gt_iou, room_of(scan) in cfg.held_out_rooms))
     return out
 
 
@@ -173,16 +164,16 @@ def _rescan_cases(cfg: CaseConfig, scans: set[str]) -> list[Case]:
     directions = []
     for src, ref, T in accepted_directions(load_rescan_gt(resolve(cfg.rescan_gt)), scans):
         directions.append((src, ref, T))
-        if _room(src) in cfg.held_out_rooms:
+        if room_of(src) in cfg.held_out_rooms:
             directions.append((ref, src, invert_transform(T)))
     # held-out rooms first: they are the headline
-    directions.sort(key=lambda d: (_room(d[0]) not in cfg.held_out_rooms, d[0], d[1]))
+    directions.sort(key=lambda d: (room_of(d[0]) not in cfg.held_out_rooms, d[0], d[1]))
     out = []
     for d, (a, b, T_ab) in enumerate(directions):
         src0 = _scan(str(resolve(cfg.scans_dir) / a))
         ref = _scan(str(resolve(cfg.scans_dir) / b))
         pairs, iou = _gt_nodes(src0, ref, T_ab, cfg.iou_voxel)
-        held_out = _room(a) in cfg.held_out_rooms
+        held_out = room_of(a) in cfg.held_out_rooms
         for s in range(cfg.rescan_seeds if held_out else cfg.rescan_seen_seeds):
             rng = np.random.default_rng([cfg.seed, _SEED["rescan"], d, s])
             A = _random_4dof(rng, cfg.max_translation)
@@ -196,9 +187,9 @@ def _other_rooms_of(cfg: CaseConfig, a: str, scans: list[str]) -> list[str]:
     any, but a held-out room only beside another held-out room (the different-room poses of
     training rooms feed threshold fits, which the held-out room must never enter)."""
     held = set(cfg.held_out_rooms)
-    return [s for s in scans if _room(s) != _room(a)
-            and (_room(s) in cfg.other_rooms if cfg.other_rooms
-                 else _room(s) not in held or _room(a) in held)]
+    return [s for s in scans if room_of(s) != room_of(a)
+            and (room_of(s) in cfg.other_rooms if cfg.other_rooms
+                 else room_of(s) not in held or room_of(a) in held)]
 
 
 def _different_room_cases(cfg: CaseConfig, tested: list[str], scans: list[str]) -> list[Case]:
@@ -214,14 +205,14 @@ def _different_room_cases(cfg: CaseConfig, tested: list[str], scans: list[str]) 
         view = make_pair(_scan(str(root / a)), _pair_config(cfg, rng), rng).src
         ref = make_pair(_scan(str(root / b)), _pair_config(cfg, rng), rng).ref
         out.append(Case("different_rooms", f"{a}|{b}#{k}", view, ref, None,
-                        held_out=_room(a) in cfg.held_out_rooms))
+                        held_out=room_of(a) in cfg.held_out_rooms))
     return out
 
 
 def build_cases(cfg: CaseConfig, settings: tuple[str, ...] = SETTINGS) -> list[Case]:
     """Every case of the requested settings, in SETTINGS order (rescans: held-out first)."""
     scans = _scans(cfg)
-    tested = [s for s in scans if _room(s) in cfg.rooms]
+    tested = [s for s in scans if room_of(s) in cfg.rooms]
     if not tested:
         raise InstanceMapError(f"{cfg.scans_dir}: no {cfg.scan_prefix}* scan of rooms "
                                f"{list(cfg.rooms)}")

@@ -38,7 +38,6 @@ Public API:
                                   the verdict refused, or one the runtime's rules held (RUNTIME_RULES)
     out_of_reach(frames, word) -> int    registrable frames no link rule could have published
                                   right from these estimates as the verdict judged them
-    room_of(path) -> str          "scene0003" for a ScanNet scan, the folder name otherwise
     summarize(results, suite, word=None) -> dict     rows: overall, held-out and training rooms, single /
                                   cross capture, synthetic, each walk; "bags": one row per bag
     format_summary(summary) -> str
@@ -60,6 +59,7 @@ import numpy as np
 
 from ..config import as_hinted, check_types, from_dict, to_dict
 from ..metrics import SUCCESS_RRE_DEG, SUCCESS_RTE_M
+from ..rescan_gt import room_of
 from ..simulation.synth import SynthConfig
 
 SCENE = re.compile(r"(scene\d{4})_\d{2}")
@@ -142,11 +142,6 @@ class ResultCache:
         """Write report (its "cache_key" set here: key, or None when another fleet took part)."""
         report["cache_key"] = None if report.get("foreign") else key
         self.path(name).write_text(json.dumps(report, indent=1, default=float) + "\n")
-
-
-def room_of(path: str | Path) -> str:
-    m = SCENE.search(Path(path).name)
-    return m.group(1) if m else Path(path).name
 
 
 def _short(scan: str) -> str:

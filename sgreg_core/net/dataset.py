@@ -36,7 +36,7 @@ from ..config import finite_number
 from ..geometry import invert_transform, transform_points, yaw_transform
 from ..maps.instance_map import labelled_mask, read_instance_map
 from ..paths import RESCAN_GT, SCANS, require, resolve, source_digest
-from ..rescan_gt import accepted_directions, load_rescan_gt
+from ..rescan_gt import accepted_directions, load_rescan_gt, room_of
 from ..simulation.noise import NoiseConfig
 from ..simulation.pairs import PairConfig, RegistrationPair, make_pair, node_iou
 from ..maps.level import LevelConfig, level_map
@@ -194,9 +194,9 @@ class PairSource:
                        if p.is_dir())
 
         def split_of(name: str) -> str:
-            if any(room in name for room in cfg.test_rooms):
+            if room_of(name) in cfg.test_rooms:
                 return "test"
-            return "val" if cfg.val_room and cfg.val_room in name else "train"
+            return "val" if cfg.val_room and room_of(name) == cfg.val_room else "train"
         self.scans = [s for s in scans if split_of(s) == split]
         self.rescans = self._rescan_list(set(self.scans))
         sources = {"scan": bool(self.scans), "rescan": bool(self.rescans),

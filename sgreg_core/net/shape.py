@@ -20,7 +20,7 @@ only), so Z and F are invariant to a global 4-DoF transform, like the GNN.
 
 Public API:
     ShapeConfig
-    sample_node_points(points, K, rng) -> (n, K, 3) float32, (n, K) bool   (numpy, vectorised)
+    sample_node_points(points, k, rng) -> (n, k, 3) float32, (n, k) bool   (numpy, vectorised)
     ShapeEncoder(cfg)(local, valid) -> F (n, d_shape), H (n, K, 2 d_hidden)
     PointEncoder(cfg, d_node)(local, valid, H, F, centers, x) -> Z (n, K, d_z)
 """

@@ -1,4 +1,4 @@
-"""Tiny stand-ins for tests and smoke checks: no MiniLM load, no data on disk.
+"""Tiny stand-ins for the tests (tests/core, tests/ros): no MiniLM load, no data on disk.
 
 Public API:
     hashed_text_encoder() -> TextEncoder       pseudo-random unit embeddings seeded by the label

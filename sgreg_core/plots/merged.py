@@ -1,17 +1,11 @@
 """The merged map as a person would look at it: every agent's map, top-down, placed in the merged
-frame by its pose, each agent in its own colour."""
+frame by its pose, each agent in its own colour (the one it has in RViz: views.agent_rgb)."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..geometry import transform_points, voxel_downsample
-
-AGENT_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
-                "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
-
-
-def agent_color(index: int) -> str:
-    return AGENT_COLORS[index % len(AGENT_COLORS)]
+from ..runtime.views import agent_rgb
 
 
 def plot_merged_map(clouds: dict, poses: dict, out_path, title: str = "", voxel: float = 0.1,
@@ -30,7 +24,7 @@ def plot_merged_map(clouds: dict, poses: dict, out_path, title: str = "", voxel:
             missing.append(agent)
             continue
         pts = transform_points(poses[agent], voxel_downsample(np.asarray(clouds[agent]), voxel))
-        ax.scatter(pts[:, 0], pts[:, 1], s=0.4, c=agent_color(k), alpha=0.5, lw=0,
+        ax.scatter(pts[:, 0], pts[:, 1], s=0.4, color=agent_rgb(k) / 255.0, alpha=0.5, lw=0,
                    label=f"{agent} ({len(clouds[agent])} points)")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m] (merged frame)")

@@ -152,8 +152,8 @@ class PoseResult:
     clique_sizes:        maximum-clique size per pyramid level (empty without pyramid).
     spread:              m, inlier spread used by the verdict.
     T_competitor:        the best competing hypothesis (None when there was none).
-    fitness, overlap, verify_score, rmse, footprint_share, footprint_fitness: the
-                         `Verification` of T (NaN without clouds).
+    fitness, footprint_share, footprint_fitness: the `Verification` of T (NaN
+                         without clouds).
     timing_ms:           milliseconds per step and "total".
     """
 
@@ -176,9 +176,6 @@ class PoseResult:
     spread: float = 0.0
     T_competitor: np.ndarray | None = None
     fitness: float = float("nan")
-    overlap: float = float("nan")
-    verify_score: float = float("nan")
-    rmse: float = float("nan")
     footprint_share: float = float("nan")
     footprint_fitness: float = float("nan")
     timing_ms: dict[str, float] = field(default_factory=dict)
@@ -511,8 +508,7 @@ def estimate_pose(src_pts, ref_pts, weights=None, src_cloud=None, ref_cloud=None
             result.T, result.refined, ver = T_icp, True, ver_icp
     if ver is not None:
         ev.fitness, ev.footprint_share = ver.footprint_fitness, ver.footprint_share
-        result.fitness, result.overlap = ver.fitness, ver.overlap
-        result.verify_score, result.rmse = ver.score, ver.rmse
+        result.fitness = ver.fitness
         result.footprint_share, result.footprint_fitness = ver.footprint_share, ver.footprint_fitness
     elif have_clouds:   # clouds that cannot be verified on support nothing
         ev.fitness = ev.footprint_share = 0.0

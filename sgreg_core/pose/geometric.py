@@ -24,7 +24,7 @@ Public API:
     GeometricConfig
     geometric_hypothesis(src_cloud, ref_points, cfg) -> (4, 4) T or None
     turned(T, src, turns_deg) -> list of (4, 4): T turned about the vertical through src
-    surface_count(voxels, voxel) -> int   voxels the solver's features can describe
+    surface_count(vox, voxel) -> int   voxels the solver's features can describe
     geometric_confidence(evidence, cfg) -> float in [0, 1]
     judge_geometric(evidence, verdict, cfg) -> reason ("ok" or a verdict.REASONS entry)
     geometric_estimate(src_xyz, ref_xyz, groups, src_cloud, reference, rivals, pose_cfg, cfg)
@@ -40,7 +40,7 @@ from .estimator import (PoseConfig, PoseResult, best_refined_rival, cloud_verifi
                         refine_icp_coarse_to_fine, spread_of)
 from .solvers import apply_T, make_T, residuals, yaw_rotation
 from .verdict import REASONS, Evidence, VerdictConfig, finite_or_zero
-from .verify import ReferenceCloud, voxel_downsample
+from .verify import ReferenceCloud, finite_voxel_downsample
 
 # what a dense estimate can be refused for (the estimator's reason before the verdict's); a
 # near-tie ("ambiguous") is not among those a geometric pose may answer: it always stands
@@ -140,9 +140,9 @@ def geometric_hypothesis(src_cloud: np.ndarray, ref_points: np.ndarray,
     src, ref = src[np.isfinite(src).all(1)], ref[np.isfinite(ref).all(1)]
     if min(src.shape[0], ref.shape[0]) < cfg.min_points:
         return None
-    src_vox = voxel_downsample(src, cfg.voxel)
+    src_vox = finite_voxel_downsample(src, cfg.voxel)
     if src_vox.shape[0] < cfg.min_voxels or not _has_surface(src_vox, cfg) \
-            or not _has_surface(voxel_downsample(ref, cfg.voxel), cfg):
+            or not _has_surface(finite_voxel_downsample(ref, cfg.voxel), cfg):
         return None
     matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(cfg.voxel))
     sol = matcher.estimate(src, ref)
@@ -256,5 +256,4 @@ def geometric_estimate(src_xyz: np.ndarray, ref_xyz: np.ndarray, groups: np.ndar
                       inlier_groups=np.unique(groups[inl]), num_correspondences=n, candidates=1,
                       hypotheses=[T0], spread=ev.spread,
                       T_competitor=None if rival is None else rival[0], fitness=ver.fitness,
-                      overlap=ver.overlap, verify_score=ver.score, rmse=ver.rmse,
                       footprint_share=ver.footprint_share, footprint_fitness=ver.footprint_fitness)

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry import yaw_rotation
+
 # Relative size below which a principal spread counts as zero (collinear / coincident points).
 _DEGENERATE_RATIO = 1e-3
 # Absolute spread (metres) below which points count as coincident.
@@ -41,12 +43,6 @@ def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 def apply_T(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Transform (N, 3) points by a 4x4 transform."""
     return pts @ T[:3, :3].T + T[:3, 3]
-
-
-def yaw_rotation(yaw: float) -> np.ndarray:
-    """Rotation about +z by `yaw` radians."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _check(src: np.ndarray, ref: np.ndarray, w: np.ndarray | None) -> tuple[str, np.ndarray]:

@@ -21,7 +21,7 @@ make up for a fitness a little under what few objects would need.
 Public API:
     VerdictConfig
     Evidence                       what the estimator measured about its winner
-    judge(evidence, cfg) -> reason "ok" or the first missing piece of evidence
+    judge(evidence, cfg, have_clouds) -> reason   "ok" or the first missing piece of evidence
     confidence(evidence, cfg) -> float in [0, 1]
     finite_or_zero(v) -> float     v, or 0 where it was not measured (NaN)
     REASONS                        every reason judge can give, in the order it checks them

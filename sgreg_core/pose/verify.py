@@ -37,26 +37,22 @@ from .solvers import apply_T
 @dataclass
 class Verification:
     """fitness: share of source points supported (point-to-point and point-to-plane);
-    overlap: share of source points with a reference point within tau (point-to-point only);
     score: mean truncated point-to-plane score, in [0, 1], used to rank candidates;
-    rmse: point-to-point RMSE (m) of the supported points (inf when none);
     footprint_share: share of source points that land on the reference's footprint;
     footprint_fitness: share of those on its core (Footprint.core; the whole footprint with
     rim 0) that are supported (0 when fewer than MIN_CORE_POINTS land on the core)."""
 
     fitness: float
-    overlap: float
     score: float
-    rmse: float
     footprint_share: float
     footprint_fitness: float
 
 
-FAILED = Verification(0.0, 0.0, 0.0, np.inf, 0.0, 0.0)
+FAILED = Verification(0.0, 0.0, 0.0, 0.0)
 NORMAL_NEIGHBOURS = 10   # points per local plane fit of a normal
 
 
-def voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
+def finite_voxel_downsample(pts: np.ndarray, voxel: float) -> np.ndarray:
     """Centroid of the points in each occupied voxel (geometry.voxel_downsample, float64);
     non-finite points, and points with a coordinate beyond FAR_M (no map's, levelled or posed:
     their voxels would overflow), are dropped first."""
@@ -161,7 +157,7 @@ class ReferenceCloud:
 
     def __init__(self, cloud: np.ndarray, voxel: float = 0.05, footprint_cell: float = 0.2):
         self.voxel = float(voxel)
-        self.points = voxel_downsample(cloud, voxel)
+        self.points = finite_voxel_downsample(cloud, voxel)
         self.valid = self.points.shape[0] >= 3
         if self.valid:
             self.tree = cKDTree(self.points)
@@ -200,7 +196,7 @@ class CloudVerifier:
         self.rim, self.probe = check_rim(footprint_rim), check_probe(footprint_probe)
         self.reference = ref if isinstance(ref, ReferenceCloud) else \
             ReferenceCloud(ref, voxel, footprint_cell)
-        self.src = voxel_downsample(src, voxel)
+        self.src = finite_voxel_downsample(src, voxel)
         if self.src.shape[0] > max_src_points:
             pick = np.random.default_rng(seed).choice(self.src.shape[0], max_src_points,
                                                       replace=False)
@@ -225,13 +221,11 @@ class CloudVerifier:
         half = 0.5 * self.tau
         supported = near & (plane <= half)
         score = np.where(near, np.clip(1.0 - (plane / half) ** 2, 0.0, None), 0.0)
-        rmse = float(np.sqrt(np.mean(dist[supported] ** 2))) if supported.any() else np.inf
         on_plan = ref.footprint.contains(moved)
         on_core = ref.footprint.contains(moved, self.rim) if self.rim else on_plan
         if self.probe > 0:
             on_core = on_core & self._two_sided(T, moved)
-        return Verification(fitness=float(supported.mean()), overlap=float(near.mean()),
-                            score=float(score.mean()), rmse=rmse,
+        return Verification(fitness=float(supported.mean()), score=float(score.mean()),
                             footprint_share=float(on_plan.mean()),
                             footprint_fitness=float(supported[on_core].mean())
                             if on_core.sum() >= MIN_CORE_POINTS else 0.0)

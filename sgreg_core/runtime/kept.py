@@ -8,7 +8,7 @@ Public API:
     levelled_alike(a, b) -> bool            two levelling rotations are the same
     median_shift(then, node_ids, centers)   median movement of nodes since `then`
     dense_shift(graph, dense)               median movement of a dense answer's nodes in the graph
-    moved_between(graph, dense, max_shift)  a dense answer's nodes no longer where the graph has them
+    moved_between(graph, dense, max_shift_m)  a dense answer's nodes no longer where the graph has them
 """
 from __future__ import annotations
 

@@ -52,7 +52,7 @@ Public API:
     Merger                    one agent's merger: levellings + Links + merge + what changed +
                               which peers need no more dense data (settled, placed by others),
                               which links are disputed
-    to_4dof(T) -> (yaw, t) / from_4dof(yaw, t) -> 4x4
+    to_4dof(T) -> (yaw, t)    (geometry.yaw_transform(yaw, t) is its inverse)
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..config import param
-from ..geometry import MAX_COORD_M, invert_transform, is_rigid, is_rotation
+from ..geometry import MAX_COORD_M, invert_transform, is_rigid, is_rotation, yaw_transform
 from ..maps.level import MAX_TILT_DEG, tilt_deg
 from .clock import stamp_ns as _stamp_ns
 
@@ -95,14 +95,6 @@ def to_4dof(T: np.ndarray) -> tuple[float, np.ndarray]:
     """Yaw (rad) and translation of a transform; roll and pitch are dropped."""
     T = np.asarray(T, np.float64)
     return float(np.arctan2(T[1, 0], T[0, 0])), T[:3, 3].copy()
-
-
-def from_4dof(yaw: float, t) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:3, 3] = np.asarray(t, np.float64)
-    return T
 
 
 def _deviation(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
@@ -387,7 +379,7 @@ def _average(group: list[str], anchor: str | None, links: list[Link],
         forest.add(l)
     # start from the spanning paths: T_merged<-a = T_a^anchor
     index = {a: i for i, a in enumerate(group)}
-    P = np.stack([from_4dof(*to_4dof(forest.path_T(a, anchor))) for a in group])
+    P = np.stack([yaw_transform(*to_4dof(forest.path_T(a, anchor))) for a in group])
     # per agent, its measurements: (the other ends, T_a^other, weights)
     around = {a: ([], [], []) for a in group}
     for l in links:
@@ -409,7 +401,7 @@ def _average(group: list[str], anchor: str | None, links: list[Link],
             old_yaw, old_t = to_4dof(P[index[a]])
             moved = max(moved, float(np.linalg.norm(t - old_t)),
                         abs(float(np.angle(np.exp(1j * (yaw - old_yaw))))))
-            P[index[a]] = from_4dof(yaw, t)
+            P[index[a]] = yaw_transform(yaw, t)
         if moved < 1e-6:
             break
     return {a: P[index[a]] for a in group}

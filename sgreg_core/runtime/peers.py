@@ -74,6 +74,7 @@ from ..pipeline import PipelineConfig, Registration, register_features, to_map_f
 from .agent import AgentConfig, AgentCore
 from .intake import check_message
 from .kept import Kept, centers_of, dense_shift, levelled_alike, median_shift, moved_between
+from .merge import MergeConfig
 from .messages import DenseRequestMessage, Estimate, GraphMessage
 
 
@@ -89,10 +90,6 @@ class PeersConfig:
         it is confirmed. A request goes out only when either map changed since the last
         answered exchange: the same two graphs give the same dense estimate, so asking again
         would only cost bandwidth (an unanswered request is asked again).
-    refresh_growth: a settled link (attached_request_interval_s) asks at min_request_interval_s
-        again once its coarse estimate matches this many times the nodes that the estimate
-        behind its last dense answer matched: a link confirmed on small early maps is
-        re-estimated on the grown ones instead of carried by its first points (0: off).
     search_request_interval_s: the interval while no link is confirmed: dense exchanges find a
         first link, and confirm it, in seconds.
     attached_request_interval_s: the interval to a peer that the merger places in the agent's
@@ -157,11 +154,12 @@ class PeersConfig:
         register them onto each other, and nothing in two one-room maps tells the copies apart:
         the building suite (config/suites/building.yaml) verifies such slides at first contact,
         and they stand until a map grows past the run of identical rooms and contradicts them.
-        Holding first links lets that happen before anything is published: 5 s cuts the suite's
-        wrong verified frames 100 -> 24, 10 s -> 2, at a cost in success (70 -> 58 -> 45 %)
-        and time to the first link (5 -> 9 -> 15 s; docs/RESULTS.md, session 8). Off by
-        default: single rooms and apartments do not alias so, and the real suite would lose
-        the first seconds of every link.
+        Holding first links lets that happen before anything is published: 10 s with
+        withdraw_on_tie (config/profiles/identical_rooms.yaml) leaves that suite 4 wrong
+        verified frames instead of about 150, at 48 % success over registrable frames instead
+        of 74 % (README; docs/RESULTS.md, sessions 8, 29 and 36). Off by default: single rooms
+        and apartments do not alias so, and the real suite would lose the first seconds of
+        every link.
     withdraw_on_tie: a confirmed link is withdrawn (counter withdrawn_by_tie, logged) when an
         estimate from new data (dense or coarse, not merged) is refused as ambiguous: the maps
         have grown to show a second pose nearly as well supported, so the link may be a slide
@@ -205,10 +203,6 @@ class PeersConfig:
         nodes they come from moved by more than this (median, in either map) since; without
         kept correspondences, the peer's dense cloud when the nodes of its answer moved so in
         the peer's map.
-    merged_tolerance: (m, deg) an estimate that lies farther than this from where the merged
-        frame places the peer, where other agents' links join the two (Merger.expected), is
-        withheld as disputed_by_cycles (the merger's cycle tolerance, MergeConfig.cycle_m /
-        cycle_deg).
     pipeline: the one registration pipeline (pipeline.PipelineConfig): dense settings for
         dense answers, coarse settings for coarse and merged estimates, ICP before the verdict.
         The verdict needs, after ICP, at least pose.verdict.min_fitness of the peer's points
@@ -224,9 +218,6 @@ class PeersConfig:
     attached_request_interval_s: float = param(30.0, "the request interval to a peer the merged "
                                                "frame places", 0.0,
                                                3600.0, live=True)
-    refresh_growth: float = param(0.0, "a settled link asks for new points at the usual interval "
-                                  "once the maps match on this many times the nodes its points "
-                                  "came from (0: off)", 0.0, 100.0, live=True)
     request_timeout_s: float = param(2.0, "an unanswered dense request is retried after this",
                                      0.1, 600.0, live=True)
     retry_backoff: float = param(2.0, "each retry waits this factor longer", 1.0, 10.0, live=True)
@@ -267,7 +258,6 @@ class PeersConfig:
     agree_m: float = param(0.3, "two estimates agree within this translation (m)", 0.01, 5.0)
     agree_deg: float = param(3.0, "two estimates agree within this rotation (deg)", 0.1, 90.0)
     kept_max_shift_m: float = 0.5
-    merged_tolerance: tuple[float, float] = (0.5, 5.0)
     quiet_peer_s: float = param(2.0, "re-estimate against a peer's last coarse graph when the own map "
                                 "changes and the peer sent none for this long", 0.1, 3600.0, live=True)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
@@ -280,7 +270,6 @@ class _PendingRequest:
     node_ids: np.ndarray
     sent_at: float
     data: tuple[str, str]       # (own, peer) graph digests the request was made for
-    matches: int = 0            # node matches of the estimate that wished for it
     retries: int = 0
     earlier: tuple[int, ...] = ()   # the sequences it was sent under before its retries
 
@@ -307,8 +296,7 @@ class PeerLink:
     coarse_at: float = -np.inf   # when the last coarse graph arrived
     coarse_data: tuple[str, str] | None = None   # (own, peer) digests of the last coarse estimate
     exchanged: tuple[str, str] | None = None     # (own, peer) digests of the last answered request
-    wanted: tuple | None = None   # ((own, peer) digests, peer node ids, node matches): the dense data to ask for
-    exchanged_matches: int = 0   # node matches of the estimate whose wish the last answer met
+    wanted: tuple | None = None   # ((own, peer) digests, peer node ids): the dense data to ask for
     dense: GraphMessage | None = None
     dense_cloud: np.ndarray | None = None
     kept: Kept | None = None     # peer -> own inliers kept for merged estimates
@@ -366,8 +354,10 @@ class Peers:
         self.attached: set[str] = set()   # peers placed in the merged frame, links undisputed
         self.disputed: set[str] = set()   # peers whose link with this agent the cycles reject
         self.placed: set[str] = set()     # peers other agents' links place (Merger.placed_by_others)
-        # T_agent^peer where other agents' links place the peer in the merged frame, or None
+        # T_agent^peer where other agents' links place the peer in the merged frame, or None;
+        # an estimate farther from it than the merger's cycle tolerance is disputed_by_cycles
         self.expected: Callable[[str], np.ndarray | None] = lambda peer: None
+        self.merged_tolerance: tuple[float, float] = (MergeConfig.cycle_m, MergeConfig.cycle_deg)
         self.counters: Counter = agent.counters     # one table per node: the agent's
         self._request_seq = 0
         self._witnesses: dict[str, dict] = {}   # peer -> {kind: (T_agent^peer, when heard)}
@@ -378,11 +368,13 @@ class Peers:
     def follow(self, merger) -> None:
         """Take what the agent's merger (runtime/merge.Merger) last decided: which peers are
         settled or placed by others (fewer dense requests), whose links the cycles dispute
-        (withheld), and where the merged frame places each peer."""
+        (withheld), and where the merged frame places each peer, within its cycle tolerance
+        (MergeConfig.cycle_m / cycle_deg)."""
         self.attached = merger.settled_peers()
         self.disputed = merger.disputed_peers()
         self.placed = merger.placed_by_others()
         self.expected = merger.expected
+        self.merged_tolerance = (merger.cfg.cycle_m, merger.cfg.cycle_deg)
 
     # ---- inputs --------------------------------------------------------------------------
     def take_own_map(self, imap, map_sequence: int, stamp_ns: int) -> str | None:
@@ -586,7 +578,7 @@ class Peers:
     @staticmethod
     def _close_request(link: PeerLink) -> None:
         """The pending request is answered: its two graphs count as exchanged."""
-        link.exchanged, link.exchanged_matches = link.pending.data, link.pending.matches
+        link.exchanged = link.pending.data
         link.pending, link.gave_up = None, False
 
     def _coarse_beside(self, link: PeerLink, dense: GraphMessage, timings: dict,
@@ -858,7 +850,7 @@ class Peers:
         (by the cycle tolerance): a link that the next merge would reject is not published in
         the second before it."""
         expected = self.expected(peer)
-        tol_m, tol_deg = self.cfg.merged_tolerance
+        tol_m, tol_deg = self.merged_tolerance
         return expected is not None and not (rte(T, expected) < tol_m and rre(T, expected) < tol_deg)
 
     def _agree(self, a: np.ndarray, b: np.ndarray) -> bool:
@@ -1011,7 +1003,7 @@ class Peers:
             _, first = np.unique(ids, return_index=True)
             best = ids[np.sort(first)][: self.cfg.max_request_nodes]
             if len(best) >= self.agent.cfg.min_nodes:   # an answer on fewer would be refused
-                link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best), reg.node_matches)
+                link.wanted = ((self.agent.digest, link.coarse.digest), np.sort(best))
         return self._send_wanted(link, now)
 
     def _send_wanted(self, link: PeerLink, now: float) -> DenseRequestMessage | None:
@@ -1019,18 +1011,16 @@ class Peers:
         yet exchanged."""
         if link.wanted is None or link.pending is not None:
             return None
-        data, wanted, matches = link.wanted
+        data, wanted = link.wanted
         if data == link.exchanged:      # nothing new to learn from the same two graphs
             return None
         # the points of a confirmed link at hand: new ones would only refine it
         settled = link.confirmed is not None and link.dense_cloud is not None
         interval = self.cfg.min_request_interval_s if settled else self.cfg.search_request_interval_s
-        grown = self.cfg.refresh_growth > 0 and matches >= self.cfg.refresh_growth * max(link.exchanged_matches, 1)
-        if (settled and link.peer_id in self.attached and not grown) \
+        if (settled and link.peer_id in self.attached) \
                 or (link.confirmed is None and link.peer_id in self.placed):
             # settled: a placed peer whose points are at hand (dropped when its map moved), or
-            # one that other agents' links place through a consistent triangle; unless the
-            # maps now match on refresh_growth times the nodes the link's points came from
+            # one that other agents' links place through a consistent triangle
             interval = max(interval, self.cfg.attached_request_interval_s)
         elif self.cfg.prompt_request and link.prompt and not link.gave_up:
             # a coarse estimate waits for these points: asked as soon as the peer answers again
@@ -1038,7 +1028,7 @@ class Peers:
         if now - link.last_request_at < interval:
             return None
         self._request_seq += 1
-        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data, matches)
+        link.pending = _PendingRequest(self._request_seq, link.coarse.sequence, wanted, now, data)
         link.last_request_at, link.prompt = now, False
         self._count("requests")
         return self._request_message(link, link.pending)

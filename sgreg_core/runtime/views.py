@@ -7,7 +7,7 @@ Public API:
     agent_rgb(index) -> (3,) uint8              one colour per agent (tab10)
     GraphView                                   nodes (map frame), labels, colours, edges
     graph_view(graph) -> GraphView              of a SceneGraph built on a levelled map
-    centers_in_map(ids, centers, level) / points_in_map(points, level)   levelled -> map frame
+    centers_in_map(node_ids, centers, level) / points_in_map(points, level)   levelled -> map frame
     match_lines(own, peer, pairs, T_own, T_peer) -> (m, 2, 3)   matched node centers, merged frame
     merged_cloud(clouds, poses, voxel) -> (points (N, 3), rgb (N,) uint32 0x00RRGGBB)
 """

@@ -10,7 +10,6 @@ Public API:
     make_pair(imap, cfg, rng) -> RegistrationPair
     node_iou(src_points, src_inst, ref_points, ref_inst, voxel) -> (pairs (m, 2), iou (m,))
         IoU of voxel occupancy of every overlapping (src instance, ref instance), common frame
-    point_correspondences(src_points, ref_points, T_src_ref, radius=0.05) -> (k, 2) int64
         (i, j): ref_points[j] is the nearest ref point to src_points[i] moved by T, within radius
     write_pair(pair, out_dir) / read_pair(dir)
         out_dir/src/, out_dir/ref/ (instance map directories) and out_dir/gt.json
@@ -35,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from ..geometry import invert_transform, pack_keys, transform_points, voxel_coords, yaw_transform
+from ..maps.level import tilt_deg
 from ..maps.instance_map import InstanceMapError, labelled_mask, read_instance_map, select_points, write_instance_map
 from ..types import InstanceMap
 from .noise import NoiseConfig, apply_noise, tilt_about, tilt_transform
@@ -93,15 +92,6 @@ def node_iou(src_points, src_inst, ref_points, ref_inst, voxel: float) -> tuple[
     return pairs[order], iou[order].astype(np.float32)
 
 
-def point_correspondences(src_points: np.ndarray, ref_points: np.ndarray, T_src_ref: np.ndarray, radius: float = 0.05) -> np.ndarray:
-    src = transform_points(T_src_ref, np.asarray(src_points, dtype=np.float64))
-    if len(src) == 0 or len(ref_points) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    dist, j = cKDTree(np.asarray(ref_points, dtype=np.float64)).query(src, k=1, distance_upper_bound=radius)
-    i = np.flatnonzero(np.isfinite(dist))
-    return np.stack([i, j[i]], axis=1).astype(np.int64)
-
-
 def _cut_views(imap: InstanceMap, cfg: PairConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     if not 0.0 < cfg.overlap <= 1.0:
         raise ValueError(f"overlap must be in (0, 1], got {cfg.overlap}")
@@ -130,11 +120,6 @@ def _renumber(imap: InstanceMap, new_ids: np.ndarray) -> InstanceMap:
         scores={mapping[k]: imap.scores.get(k, 1.0) for k in imap.labels},
         colors=imap.colors,
     )
-
-
-def _tilt_deg(T: np.ndarray) -> float:
-    """Angle between the tilted and the true z axis, in degrees."""
-    return float(np.degrees(np.arccos(np.clip(T[2, 2], -1.0, 1.0))))
 
 
 def make_pair(imap: InstanceMap, cfg: PairConfig | None = None, rng: np.random.Generator | None = None) -> RegistrationPair:
@@ -167,7 +152,7 @@ def make_pair(imap: InstanceMap, cfg: PairConfig | None = None, rng: np.random.G
     T_src_ref = R @ invert_transform(S) @ A
     meta = {"overlap": cfg.overlap, "disjoint": cfg.disjoint, "noise": asdict(cfg.noise),
             "src_points": int(len(src.points)), "ref_points": int(len(ref.points)),
-            "src_tilt_deg": _tilt_deg(S), "ref_tilt_deg": _tilt_deg(R),
+            "src_tilt_deg": tilt_deg(S[:3, :3]), "ref_tilt_deg": tilt_deg(R[:3, :3]),
             "src_tilt": S.tolist(), "ref_tilt": R.tolist()}
     return RegistrationPair(src=src, ref=ref, T_src_ref=T_src_ref, gt_node_pairs=pairs[keep],
                             gt_iou=iou[keep], meta=meta)

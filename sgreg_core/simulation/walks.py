@@ -21,6 +21,7 @@ import numpy as np
 
 from ..geometry import invert_transform, pack_keys, transform_points, voxel_coords, yaw_transform
 from ..maps.instance_map import labelled_mask, select_points
+from ..maps.level import rotation_between
 from .observe import SensorConfig, TrajectoryConfig, make_trajectory, observe_sequence, reverse_trajectory
 from .pairs import node_iou
 from ..maps.scene_graph import is_structural
@@ -126,9 +127,7 @@ def level_transform(scene: InstanceMap, min_tilt_deg: float = 1.0) -> np.ndarray
     s, c = np.linalg.norm(axis), n[2]
     if np.degrees(np.arctan2(s, c)) < min_tilt_deg:
         return T
-    k = axis / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    T[:3, :3] = np.eye(3) + s * K + (1 - c) * K @ K     # Rodrigues: n -> +z
+    T[:3, :3] = rotation_between(n, np.array([0.0, 0.0, 1.0]))
     return T
 
 

@@ -5,22 +5,22 @@ import itertools
 import numpy as np
 import pytest
 
-from sgreg_core.geometry import invert_transform
-from sgreg_core.runtime.merge import Link, Links, MergeConfig, from_4dof, merge, to_4dof
+from sgreg_core.geometry import invert_transform, yaw_transform
+from sgreg_core.runtime.merge import Link, Links, MergeConfig, merge, to_4dof
 
 S = 1_000_000_000   # ns per second
 
 # each agent's map frame in the world: T_world<-agent
-WORLD = {"a": from_4dof(0.3, (1.0, 2.0, 0.0)), "b": from_4dof(-1.2, (-4.0, 0.5, 0.1)),
-         "c": from_4dof(2.5, (3.0, -6.0, 0.0)), "d": from_4dof(0.9, (8.0, 8.0, -0.1)),
-         "e": from_4dof(-2.0, (-7.0, -3.0, 0.0))}
+WORLD = {"a": yaw_transform(0.3, (1.0, 2.0, 0.0)), "b": yaw_transform(-1.2, (-4.0, 0.5, 0.1)),
+         "c": yaw_transform(2.5, (3.0, -6.0, 0.0)), "d": yaw_transform(0.9, (8.0, 8.0, -0.1)),
+         "e": yaw_transform(-2.0, (-7.0, -3.0, 0.0))}
 
 
 def true_link(src: str, dst: str, noise: float = 0.0, rng=None) -> Link:
     """noise: yaw error (deg, std); the translation error is noise / 10 m per axis."""
     T = invert_transform(WORLD[dst]) @ WORLD[src]
     if noise:
-        T = from_4dof(rng.normal(0, np.radians(noise)), rng.normal(0, noise / 10, 3)) @ T
+        T = yaw_transform(rng.normal(0, np.radians(noise)), rng.normal(0, noise / 10, 3)) @ T
     return Link(src, dst, T, confidence=0.95)
 
 
@@ -47,7 +47,7 @@ def test_an_injected_wrong_link_is_rejected_by_cycle_consistency():
     rng = np.random.default_rng(0)
     right = [true_link(s, d, noise=0.5, rng=rng) for s, d in itertools.permutations("abcd", 2)
              if (s, d) != ("d", "b")]
-    wrong = Link("d", "b", from_4dof(np.radians(40), (2.0, 1.0, 0.0)) @ true_link("d", "b").T,
+    wrong = Link("d", "b", yaw_transform(np.radians(40), (2.0, 1.0, 0.0)) @ true_link("d", "b").T,
                  confidence=0.99)        # most confident of all, and still refused
     result = merge(right + [wrong])
     assert [(l.src, l.dst) for l, _ in result.rejected] == [("d", "b")]
@@ -60,7 +60,7 @@ def test_every_order_of_arrival_gives_the_same_tree():
     rng = np.random.default_rng(1)
     links = [true_link(s, d, noise=1.0, rng=rng) for s, d in itertools.permutations("abcd", 2)
              if (s, d) != ("c", "a")]
-    links.append(Link("c", "a", from_4dof(2.0, (5.0, 0.0, 0.0)), confidence=0.9))   # wrong
+    links.append(Link("c", "a", yaw_transform(2.0, (5.0, 0.0, 0.0)), confidence=0.9))   # wrong
     first = merge(links)
     assert [l.key for l, _ in first.rejected] == [("c", "a")]
     with pytest.raises(ValueError):     # one measurement per directed link, none of an agent to itself
@@ -156,7 +156,7 @@ def test_the_merger_names_disputed_and_settled_peers():
     for s, d in itertools.permutations("abc", 2):
         l = true_link(s, d, noise=0.3, rng=rng)
         if (s, d) == ("a", "c"):        # a's own link to c is wrong
-            l = Link("a", "c", from_4dof(0.0, (4.0, 0.0, 0.0)) @ l.T)
+            l = Link("a", "c", yaw_transform(0.0, (4.0, 0.0, 0.0)) @ l.T)
         m.take(l.src, l.dst, l.T, True, "ok", "confirmed", 0.9, 1 * S)
     news = m.update()
     assert any("link a -> c rejected" in line for line in news)
@@ -169,7 +169,7 @@ def test_two_agents_that_disagree_about_their_pair_attach_nothing_and_dispute_no
     from sgreg_core.runtime.merge import Merger
 
     m = Merger(MergeConfig(), "a")
-    right, wrong = true_link("a", "b"), Link("b", "a", from_4dof(0.5, (3.0, 0.0, 0.0)) @ true_link("b", "a").T)
+    right, wrong = true_link("a", "b"), Link("b", "a", yaw_transform(0.5, (3.0, 0.0, 0.0)) @ true_link("b", "a").T)
     m.take("a", "b", right.T, True, "ok", "confirmed", 0.90, 1 * S)
     m.take("b", "a", wrong.T, True, "ok", "confirmed", 0.99, 1 * S)
     m.update()
@@ -224,7 +224,7 @@ def test_an_agent_two_equally_backed_paths_place_apart_waits_unattached():
     """b and d agree on a wrong link (a slide by one room width), c and d on the right one, and
     no link of a reaches d: nothing but the order would decide, so d is attached by neither
     until a's link settles it."""
-    slide = from_4dof(0.0, (4.04, 0.0, 0.0))
+    slide = yaw_transform(0.0, (4.04, 0.0, 0.0))
     base = [true_link(s, d) for s, d in itertools.permutations("abc", 2)]
     b_d = [Link("b", "d", slide @ true_link("b", "d").T, 0.99),
            Link("d", "b", invert_transform(slide @ true_link("b", "d").T), 0.99)]
@@ -247,7 +247,7 @@ def test_one_wrong_link_in_a_ring_of_weak_links_leaves_the_rest_attached():
     less confident a -> e: the cycle cannot single out one link, so the order of confidence
     stands and the wrong link alone is rejected (nothing is contested)."""
     ring = [Link(s_, d, true_link(s_, d).T, 0.9) for s_, d in ("ab", "bc", "cd", "de")]
-    wrong = Link("a", "e", from_4dof(0.3, (2.0, 0.0, 0.0)) @ true_link("a", "e").T, 0.5)
+    wrong = Link("a", "e", yaw_transform(0.3, (2.0, 0.0, 0.0)) @ true_link("a", "e").T, 0.5)
     result = merge(ring + [wrong])
     assert result.attached == ["a", "b", "c", "d", "e"]
     assert [(l.key, why.startswith("breaks")) for l, why in result.rejected] == [(("a", "e"), True)]
@@ -267,7 +267,7 @@ def test_a_withheld_link_does_not_push_out_the_links_that_placed_the_frame():
     for s_, d in ("ac", "cb"):
         m.take(s_, d, true_link(s_, d).T, True, "ok", "confirmed", 0.9, S)
     m.update()
-    wrong = from_4dof(np.radians(25.0), (3.0, 0.0, 0.0)) @ true_link("a", "b").T
+    wrong = yaw_transform(np.radians(25.0), (3.0, 0.0, 0.0)) @ true_link("a", "b").T
     for k in range(3):
         m.take("a", "b", wrong, False, "disputed_by_cycles", "confirmed", 0.9, (2 + k) * S)
         m.update()
@@ -281,7 +281,7 @@ def test_an_agent_whose_links_two_others_contradict_as_strongly_waits_unattached
     a and c agree. {a -> b, c -> b, a - c} and {b -> a, b -> c, a - c} each close a consistent
     triangle: every disagreeing pair is as well backed on both sides. Ordered by confidence, a
     surer b was placed 4 m off and a's and c's right links were disputed; now b waits."""
-    slide = from_4dof(0.0, (4.0, 0.0, 0.0))
+    slide = yaw_transform(0.0, (4.0, 0.0, 0.0))
     right = [Link(s_, d, true_link(s_, d).T, 0.95) for s_, d in ("ab", "cb", "ac", "ca")]
     wrong = [Link("b", d, true_link("b", d).T @ slide, 0.99) for d in "ac"]
     result = merge(right + wrong)
@@ -365,9 +365,9 @@ def test_the_merged_frame_expects_a_pose_only_where_other_agents_links_join_the_
 def test_poses_are_averaged_to_a_fixed_point_in_yaw_too():
     """The averaging stopped when no translation moved, though yaws still did: with maps whose
     origins coincide, after one sweep."""
-    world = {k: from_4dof(y, (0.0, 0.0, 0.0)) for k, y in zip("abcd", (0.0, 0.5, 1.0, 1.5))}
+    world = {k: yaw_transform(y, (0.0, 0.0, 0.0)) for k, y in zip("abcd", (0.0, 0.5, 1.0, 1.5))}
     rng = np.random.default_rng(0)
-    links = [Link(s_, d, from_4dof(rng.normal(0, np.radians(2)), (0, 0, 0))
+    links = [Link(s_, d, yaw_transform(rng.normal(0, np.radians(2)), (0, 0, 0))
                   @ invert_transform(world[d]) @ world[s_], 0.9) for s_, d in itertools.permutations("abcd", 2)]
     r = merge(links, cfg=MergeConfig(average_iters=200))
     for x in "bcd":     # each pose is the weighted circular mean of what its links say
@@ -399,8 +399,8 @@ def test_both_links_of_a_pair_get_the_same_answer_whatever_the_names():
     order decided whether the pair attached."""
     from sgreg_core.runtime.merge import _support
 
-    X = from_4dof(0.4, (20.0, 0.0, 0.0))
-    T_qp = invert_transform(X) @ from_4dof(np.radians(3.0), (0.0, 0.0, 0.0))
+    X = yaw_transform(0.4, (20.0, 0.0, 0.0))
+    T_qp = invert_transform(X) @ yaw_transform(np.radians(3.0), (0.0, 0.0, 0.0))
     outcomes = []
     for p, q in (("a", "b"), ("b", "a")):
         pair, _ = _support([Link(p, q, X), Link(q, p, T_qp)], MergeConfig())

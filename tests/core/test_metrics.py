@@ -3,8 +3,9 @@ import math
 
 import numpy as np
 
+from sgreg_core.geometry import transform_points, yaw_transform
 from sgreg_core.metrics import (inlier_ratio, node_match_scores, registration_rmse, registration_success, rre, rte,
-                                transform_points, two_agent_success, yaw_transform)
+                                two_agent_success)
 
 
 def test_yaw_transform_and_transform_points():

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from sgreg_core.geometry import transform_points, yaw_transform
+from sgreg_core.geometry import transform_points
 from sgreg_core.maps.instance_map import labelled_mask
 from sgreg_core.simulation.noise import PARAPHRASES, NoiseConfig, apply_noise
-from sgreg_core.simulation.pairs import (PairConfig, make_pair, node_iou, point_correspondences, read_pair,
+from sgreg_core.simulation.pairs import (PairConfig, make_pair, node_iou, read_pair,
                                          write_pair)
 from sgreg_core.simulation.synth import generate_scene
 
@@ -53,13 +53,6 @@ def test_node_iou_hand_case():
     pairs, iou = node_iou(a, np.array([7, 7]), b, np.array([9, 9, 8]), voxel=0.1)
     assert pairs.tolist() == [[7, 9]]
     np.testing.assert_allclose(iou, [1 / 3])
-
-
-def test_point_correspondences():
-    T = yaw_transform(np.pi / 2, (1, 0, 0))
-    src = np.array([[1.0, 0, 0], [0, 0, 0], [5, 5, 5]])
-    ref = np.array([[1.0, 0.0, 0.0], [1.0, 1.02, 0.0]])
-    np.testing.assert_array_equal(point_correspondences(src, ref, T, radius=0.05), [[0, 1], [1, 0]])
 
 
 def test_noise_options(scene):

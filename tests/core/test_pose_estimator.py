@@ -536,8 +536,7 @@ def test_icp_is_taken_only_when_it_lowers_neither_fitness(monkeypatch):
 
         def judge(pose):
             if np.allclose(pose, slid):   # a point more fitness, a tenth less on the footprint
-                return Verification(fitness=right.fitness + 0.01, overlap=right.overlap,
-                                    score=right.score, rmse=right.rmse,
+                return Verification(fitness=right.fitness + 0.01, score=right.score,
                                     footprint_share=right.footprint_share,
                                     footprint_fitness=right.footprint_fitness - footprint_drop)
             return v(pose)
@@ -648,7 +647,7 @@ def test_the_rival_search_goes_past_starts_that_icp_brings_back_to_the_winner(mo
     class Clouds:            # every pose fits its clouds alike
         valid = True
         def __call__(self, T):
-            return est.Verification(0.9, 0.9, 0.9, 0.01, 0.6, 0.9)
+            return est.Verification(0.9, 0.9, 0.6, 0.9)
 
     s = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [2.0, 2.0, 1.0]])
     g = np.arange(4)

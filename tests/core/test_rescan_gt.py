@@ -75,3 +75,11 @@ def test_a_different_room_pair_of_a_training_room_never_takes_the_held_out_room(
     assert _other_rooms_of(held, "p_scene0005_00", scans) == scans[:3]      # any other room
     asked = CaseConfig(rooms=("scene0000",), other_rooms=("scene0005",))
     assert _other_rooms_of(asked, "p_scene0000_00", scans) == scans[3:]     # named on purpose
+
+
+def test_the_room_of_a_capture_is_one_rule_for_splits_cases_and_suites():
+    from sgreg_core.rescan_gt import room_of
+
+    assert room_of("scannet-picwoon_scene0005_01") == room_of("/x/p_scene0005_00") == "scene0005"
+    assert room_of("lab_01") == room_of("lab_02") == "lab"       # two captures of one room
+    assert room_of("myroom") == "myroom" and room_of("_01") == "_01"

@@ -1236,24 +1236,6 @@ def test_a_peer_the_merged_frame_places_is_asked_for_dense_data_rarely(model, gr
         assert (req is not None) == expect
 
 
-def test_a_settled_link_asks_again_once_the_maps_match_on_refresh_growth_times_the_nodes(model, graphs):
-    """refresh_growth: a link settled on few matched nodes is re-estimated on the grown maps
-    (its first points would otherwise carry it for attached_request_interval_s)."""
-    for growth, asks in ((0.0, False), (2.0, True), (100.0, False)):
-        cfg = PeersConfig(min_request_interval_s=5.0, attached_request_interval_s=30.0,
-                          refresh_growth=growth)
-        a, b, reg, _ = confirmed_link(model, graphs, cfg)
-        reg.attached = {"b"}
-        reg.links["b"].exchanged_matches = 2     # as if its points came from a two-node match
-        drift(b, graphs, 5, 9.0)
-        est, req = reg.on_coarse(b.coarse_message(3), now=10.0)
-        assert est.node_matches >= 4
-        assert (req is not None) == asks, growth
-        if req is not None:     # answered: the link's points now come from this many matches
-            reg.on_dense(b.dense_message(2, req.node_ids, "a", req.sequence), now=10.5)
-            assert reg.links["b"].exchanged_matches == est.node_matches
-
-
 def test_a_peer_other_agents_place_is_searched_rarely(model, graphs):
     """No link of a's own to b yet: a searches b every search interval, unless other agents'
     links place b through a consistent triangle (Peers.placed, from the merger); a bridge no

@@ -10,20 +10,19 @@ from diagnostic_msgs.msg import DiagnosticArray
 from tf2_msgs.msg import TFMessage
 from sgreg_msgs.msg import RegistrationResult
 
-from sgreg_core.geometry import invert_transform
+from sgreg_core.geometry import invert_transform, yaw_transform
 from sgreg_core.metrics import rre, rte
-from sgreg_core.runtime.merge import from_4dof
 from sgreg_cli import processes
 from sgreg_ros import qos
 from sgreg_ros.convert import transform_from_msg, transform_msg
 
-WORLD = {"a": from_4dof(0.4, (1.0, 2.0, 0.0)), "b": from_4dof(-1.1, (-4.0, 0.5, 0.0)),
-         "c": from_4dof(2.4, (3.0, -6.0, 0.0))}
+WORLD = {"a": yaw_transform(0.4, (1.0, 2.0, 0.0)), "b": yaw_transform(-1.1, (-4.0, 0.5, 0.0)),
+         "c": yaw_transform(2.4, (3.0, -6.0, 0.0))}
 
 
 def link(src: str, dst: str, wrong: bool = False) -> np.ndarray:
     T = invert_transform(WORLD[dst]) @ WORLD[src]
-    return from_4dof(np.radians(35.0), (3.0, -1.0, 0.0)) @ T if wrong else T
+    return yaw_transform(np.radians(35.0), (3.0, -1.0, 0.0)) @ T if wrong else T
 
 
 def result(agent: str, peer: str, T: np.ndarray, seq: int) -> RegistrationResult:

@@ -255,7 +255,7 @@ class _RoomFurnisher:
             self.scene.add(mshapes, self.scene.label(mon), mon.color, yaw, (cx + c * lx - s * ly, cy + s * lx + c * ly, size[2]))
         if self.rng.random() < 0.7:
             kb = KINDS["keyboard"]
-            ksize, kshapes = self.shape(kb)
+            _, kshapes = self.shape(kb)
             ly = 0.05
             self.scene.add(kshapes, self.scene.label(kb), kb.color, yaw, (cx - s * ly, cy + c * ly, size[2]))
 

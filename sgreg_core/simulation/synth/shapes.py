@@ -17,10 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def _rot(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+from ...geometry import yaw_rotation
 
 
 class Shapes:
@@ -60,7 +57,7 @@ class Shapes:
         return self
 
     def extend(self, other: "Shapes", yaw: float = 0.0, t=(0.0, 0.0, 0.0), tag: int = 0) -> "Shapes":
-        R, t = _rot(yaw), np.asarray(t, dtype=np.float64)
+        R, t = yaw_rotation(yaw), np.asarray(t, dtype=np.float64)
         if other.rects:
             r = np.array(other.rects)
             r = np.c_[r[:, :3] @ R.T + t, r[:, 3:6] @ R.T, r[:, 6:9] @ R.T]
