@@ -1356,6 +1356,20 @@ def test_an_estimate_off_the_merged_frame_of_three_agents_is_withheld(model, gra
     assert est.verified
 
 
+def test_the_merged_frame_is_held_to_the_cycle_tolerance_of_the_merger_followed(model, graphs):
+    """Offline replays and the node alike: the merger's cycle_m / cycle_deg, not a copy of them."""
+    from sgreg_core.runtime.merge import MergeConfig, Merger
+    a, b, reg, _ = confirmed_link(model, graphs)
+    reg.follow(Merger(MergeConfig(cycle_m=5.0, cycle_deg=10.0), "a"))
+    reg.expected = lambda peer: yaw_transform(0.0, (4.0, 0.0, 0.0)) @ T_GT   # 4 m off: within 5 m
+    est, _ = reg.on_coarse(b.coarse_message(3), now=2.0)
+    assert est.verified
+    reg.follow(Merger(MergeConfig(), "a"))                                     # 0.5 m: disputed
+    reg.expected = lambda peer: yaw_transform(0.0, (4.0, 0.0, 0.0)) @ T_GT
+    est, _ = reg.on_coarse(b.coarse_message(4), now=3.0)
+    assert not est.verified and est.reason == "disputed_by_cycles"
+
+
 def test_dense_requests_from_no_agent_or_for_too_many_nodes_are_not_answered(model, graphs):
     """A requester's name must be an agent id (it is kept, and echoed in the answer); an answer
     larger than max_answer_nodes is refused (the budget counts answers, not bytes); and what the
