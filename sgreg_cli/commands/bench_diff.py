@@ -47,6 +47,9 @@ def render(c, before: str, after: str) -> list[str]:
             lines.append(f"only in {side} (not in the totals): {', '.join(names)}")
     b, a = c.totals
     lines.append(f"success over registrable frames: {_rate(b)} -> {_rate(a)}")
+    if None not in c.within_reach:
+        lines.append(f"within reach of the link rules with each run's estimates: {c.within_reach[0]} -> "
+                     f"{c.within_reach[1]} of {a.registrable}")
     lines.append(f"wrong verified: {b.wrong} -> {a.wrong}; merged map wrong: {b.merged_wrong_s:.0f} s -> "
                  f"{a.merged_wrong_s:.0f} s; bags with either: {c.bags_with_wrong[0]} -> {c.bags_with_wrong[1]}")
     moved = sorted(k for k in set(c.missed[0]) | set(c.missed[1]) if c.missed[0][k] != c.missed[1][k])
@@ -66,6 +69,7 @@ def as_json(c) -> dict:
             "only_before": c.only_before, "only_after": c.only_after,
             "totals": {"before": o(c.totals[0]), "after": o(c.totals[1])},
             "bags_with_wrong_published": {"before": c.bags_with_wrong[0], "after": c.bags_with_wrong[1]},
+            "within_reach": {"before": c.within_reach[0], "after": c.within_reach[1]},
             "context_differences": {k: {"before": b, "after": a} for k, (b, a) in c.context.items()}}
 
 

@@ -42,8 +42,11 @@ class Comparison:
     """changed: bag -> (before, after) for the bags both ran whose outcome differs; only_before /
     only_after: bags one run has and the other lacks (left out of the totals); totals: the sums
     over the bags both ran; missed: (category, reason) -> registrable frames not verified;
-    context: what was run (CONTEXT_KEYS) where the two differ -> (before, after); new_wrong:
-    the bags that published something wrong (BagOutcome.broke_rule) and did not before."""
+    context: what was run (CONTEXT_KEYS) where the two differ -> (before, after); within_reach:
+    the registrable frames the link rules could reach with each run's estimates, over the bags
+    both ran (replay_suite.out_of_reach; None for a run that does not report it): a change that
+    moves it changed the estimates, one that does not only the rules; new_wrong: the bags that
+    published something wrong (BagOutcome.broke_rule) and did not before."""
 
     common: int
     changed: dict[str, tuple[BagOutcome, BagOutcome]]
@@ -53,6 +56,7 @@ class Comparison:
     bags_with_wrong: tuple[int, int]     # bags that broke the rule (BagOutcome.broke_rule)
     missed: tuple[Counter, Counter]
     context: dict[str, tuple] = field(default_factory=dict)
+    within_reach: tuple[int | None, int | None] = (None, None)
 
     @property
     def new_wrong(self) -> list[str]:
@@ -94,6 +98,12 @@ def _missed(rows: list[dict]) -> Counter:
     return out
 
 
+def _within_reach(rows: list[dict]) -> int | None:
+    if any(row.get("out_of_reach") is None for row in rows):
+        return None
+    return sum(int(row.get("registrable_frames") or 0) - int(row["out_of_reach"]) for row in rows)
+
+
 def _sum(outcomes: list[BagOutcome]) -> BagOutcome:
     return BagOutcome(sum(o.verified for o in outcomes), sum(o.registrable for o in outcomes),
                       sum(o.wrong for o in outcomes), sum(o.merged_wrong_s for o in outcomes))
@@ -118,4 +128,5 @@ def compare(before: dict, after: dict) -> Comparison:
         bags_with_wrong=(sum(p[0].broke_rule for p in pairs.values()),
                          sum(p[1].broke_rule for p in pairs.values())),
         missed=(_missed([b_bags[n] for n in common]), _missed([a_bags[n] for n in common])),
-        context={k: (b_ctx.get(k), a_ctx.get(k)) for k in CONTEXT_KEYS if b_ctx.get(k) != a_ctx.get(k)})
+        context={k: (b_ctx.get(k), a_ctx.get(k)) for k in CONTEXT_KEYS if b_ctx.get(k) != a_ctx.get(k)},
+        within_reach=(_within_reach([b_bags[n] for n in common]), _within_reach([a_bags[n] for n in common])))

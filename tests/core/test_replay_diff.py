@@ -36,6 +36,17 @@ def test_bags_that_moved_and_the_totals_over_the_bags_both_ran():
     assert c.bags_with_wrong == (0, 1) and c.new_wrong == ["y"]
     assert c.missed[0][("right_refused", "low_confidence")] == 1 and not c.missed[1]
     assert c.context == {"overrides": (None, ["peers.confirm=false"])}
+    assert c.within_reach == (None, None)        # runs from before the bound was reported
+
+
+def test_what_the_link_rules_could_reach_is_summed_over_the_bags_both_ran():
+    """It moves when the estimates change, not when only the rules do."""
+    def reach(verified, registrable, out):
+        return {**bag(verified, registrable), "out_of_reach": out}
+    c = compare(run_of({"x": reach(8, 10, 1), "y": reach(3, 4, 0), "gone": reach(5, 5, 5)}),
+                run_of({"x": reach(9, 10, 1), "y": reach(3, 4, 1)}))
+    assert c.within_reach == (13, 12)
+    assert compare(run_of({"x": reach(8, 10, 1)}), run_of({"x": bag(8, 10)})).within_reach == (9, None)
 
 
 def test_a_wrong_merged_frame_breaks_the_rule_like_a_wrong_verified_frame():
