@@ -57,28 +57,35 @@ def check_params_file(path: str | Path | None) -> list[str]:
     return [] if DEFAULT_PARAMS is None else unknown_parameters(given, parameter_file_names(DEFAULT_PARAMS))
 
 
-def merge_config_of(params: bytes | None, agent: str):
-    """The MergeConfig that agent's registration node runs when started with the parameter
-    file of these contents (None: no file, the defaults), so that a replay scores the merge
-    the agents made. ValueError (one line) when a merge value in it is not one the node takes:
-    the node would have refused to start."""
-    from sgreg_core.runtime.merge import MergeConfig
+def node_config_of(cls, params: bytes | None, agent: str):
+    """The cls (a config whose fields the registration node declares as parameters, e.g.
+    MergeConfig, PeersConfig) that agent's registration node runs when started with the
+    parameter file of these contents (None: no file, the defaults), so that a replay scores what
+    the agents ran. ValueError (one line) when a value in it is not one the node takes: the node
+    would have refused to start."""
     from sgreg_ros.params import ParameterError, check, params_of, parameter_values_for
 
     if params is None:
-        return MergeConfig()
+        return cls()
     try:
         values = parameter_values_for(params.decode(), f"/{agent}/registration")
     except UnicodeDecodeError:
         raise ValueError("parameter file: not text") from None
     picked = {}
-    for p in params_of(MergeConfig):
+    for p in params_of(cls):
         if p.name in values:
             try:
                 picked[p.name] = check(p, values[p.name])
             except ParameterError as exc:
                 raise ValueError(f"parameter file: {exc}") from None
-    return MergeConfig(**picked)
+    return cls(**picked)
+
+
+def merge_config_of(params: bytes | None, agent: str):
+    """The MergeConfig that agent's registration node runs (node_config_of)."""
+    from sgreg_core.runtime.merge import MergeConfig
+
+    return node_config_of(MergeConfig, params, agent)
 
 
 def read_params(params_file: str | Path | None) -> bytes | None:

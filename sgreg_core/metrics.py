@@ -6,6 +6,7 @@ Public API:
     registration_rmse(src_points, T_est, T_gt) -> float
         RMSE between the source points moved by T_est and by T_gt
     registration_success(src_points, T_est, T_gt, max_rmse=0.2) -> bool   registration recall
+    SUCCESS_RTE_M, SUCCESS_RRE_DEG          the paper's two-agent criterion (0.5 m, 5 deg)
     two_agent_success(T_est, T_gt, max_rte=0.5, max_rre=5.0) -> bool
     inlier_ratio(src_pts, ref_pts, T_gt, threshold=0.1) -> float
         fraction of correspondences (row i of src_pts <-> row i of ref_pts) whose residual
@@ -24,7 +25,7 @@ import numpy as np
 from .geometry import transform_points
 
 __all__ = [
-    "rre", "rte", "registration_rmse", "registration_success",
+    "SUCCESS_RRE_DEG", "SUCCESS_RTE_M", "rre", "rte", "registration_rmse", "registration_success",
     "two_agent_success", "inlier_ratio", "NodeMatchScore", "node_match_scores",
 ]
 

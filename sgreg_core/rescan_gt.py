@@ -17,6 +17,7 @@ Public API:
                                           saying why there is none (rejected with its reasons,
                                           or no entry)
     room_of(scan) -> str                  the room a capture is of (what held-out rooms name)
+    SCANNET_CAPTURE                       the pattern of a ScanNet capture in a folder name
 """
 from __future__ import annotations
 
@@ -94,7 +95,8 @@ def transform_between(pairs: list[RescanPair], a: str, b: str, path="the pseudo 
     raise RescanGTError(f"{path} has no entry for {a} x {b}")
 
 
-_SCANNET_ROOM = re.compile(r"(scene\d{4})_\d{2}")
+# a ScanNet capture's name within a scan folder's: its room, then the capture number
+SCANNET_CAPTURE = re.compile(r"(scene\d{4})_\d{2}")
 
 
 def room_of(scan: str | Path) -> str:
@@ -102,7 +104,7 @@ def room_of(scan: str | Path) -> str:
     and replay suites: 'scannet-picwoon_scene0005_01' -> 'scene0005'; otherwise the folder name
     less a trailing capture number ('lab_01' -> 'lab'); a name without one is its own room."""
     name = Path(scan).name
-    m = _SCANNET_ROOM.search(name)
+    m = SCANNET_CAPTURE.search(name)
     if m:
         return m.group(1)
     stem, _, capture = name.rpartition("_")

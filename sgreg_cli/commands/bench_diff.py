@@ -48,8 +48,8 @@ def render(c, before: str, after: str) -> list[str]:
     b, a = c.totals
     lines.append(f"success over registrable frames: {_rate(b)} -> {_rate(a)}")
     if None not in c.within_reach:
-        lines.append(f"within reach of the link rules with each run's estimates: {c.within_reach[0]} -> "
-                     f"{c.within_reach[1]} of {a.registrable}")
+        lines.append(f"within reach of the link rules with each run's estimates: {c.within_reach[0]} of "
+                     f"{b.registrable} -> {c.within_reach[1]} of {a.registrable}")
     lines.append(f"wrong verified: {b.wrong} -> {a.wrong}; merged map wrong: {b.merged_wrong_s:.0f} s -> "
                  f"{a.merged_wrong_s:.0f} s; bags with either: {c.bags_with_wrong[0]} -> {c.bags_with_wrong[1]}")
     moved = sorted(k for k in set(c.missed[0]) | set(c.missed[1]) if c.missed[0][k] != c.missed[1][k])

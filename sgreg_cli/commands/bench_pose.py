@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
 
     from sgreg_core.metrics import rre, rte, two_agent_success
     from sgreg_core.paths import output_file
-    from sgreg_core.pose import PoseConfig, apply_T, clique_pyramid, estimate_pose, make_T, yaw_rotation
+    from sgreg_core.pose import PoseConfig, apply_T, clique_pyramid, estimate_pose, make_T
+    from sgreg_core.geometry import yaw_rotation
 
     if args.n < 3 or args.trials < 1 or args.seed < 0 or not all(0.0 <= r < 1.0 for r in args.outliers):
         print("sgreg bench-pose: needs --n >= 3, --trials >= 1, --seed >= 0 and ratios in [0, 1)",

@@ -161,18 +161,19 @@ def _made_with(path: Path) -> dict | None:
 
 def _peers_word(backend: str, offline_cfg: dict, params: bytes):
     """What the run's link rules let the peer's word do (replay_suite.PeersWord, for the bound
-    out_of_reach): the offline settings, or those agent a's registration node reads from the
-    parameter file (the PeersConfig defaults where it sets none; a suite runs every agent on
-    one file)."""
+    out_of_reach): the offline settings, or the PeersConfig agent a's registration node runs
+    with this parameter file (a suite runs every agent on one file). ValueError (one line) when
+    a value in the file is not one the node takes."""
+    from dataclasses import fields
+
     from sgreg_core.bench.replay_suite import PeersWord
     from sgreg_core.runtime.peers import PeersConfig
-    from sgreg_ros.params import parameter_values_for
+    from ..processes import node_config_of
 
     names = [f.name for f in fields(PeersWord)]
-    if backend == "offline":
-        return PeersWord(**{k: float(offline_cfg["peers"][k]) for k in names})
-    values = parameter_values_for(params.decode(), "/a/registration") if params else {}
-    return PeersWord(**{k: float(values.get(k, getattr(PeersConfig(), k))) for k in names})
+    peers = offline_cfg["peers"] if backend == "offline" else \
+        {k: getattr(node_config_of(PeersConfig, params or None, "a"), k) for k in names}
+    return PeersWord(**{k: float(peers[k]) for k in names})
 
 
 def _offline_config(overrides: list[str]):
@@ -275,8 +276,9 @@ def run(args: argparse.Namespace) -> int:
     # given is still part of the cache key)
     try:
         params = (read_params(args.params_file) if args.backend == "ros" or args.params_file else None) or b""
-        if args.backend == "ros":       # a merge value the nodes refuse stops the suite before it starts
+        if args.backend == "ros":       # a value the nodes refuse stops the suite before it starts
             merge_config_of(params or None, "a")
+        word = _peers_word(args.backend, offline_cfg, params)
     except ValueError as exc:
         print(f"sgreg bench-replay: {exc}", file=sys.stderr)
         return 2
@@ -350,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
         log(f"{i + 1}/{len(jobs)} {job.name}: {report['query_frames']} frames, success over "
             f"registrable {'-' if sr is None else f'{sr:.0%}'}, wrong verified "
             f"{report['wrong_verified']} ({time.monotonic() - t0:.0f} s; about {eta / 60:.0f} min left)")
-    summary = summarize(results, suite, _peers_word(args.backend, offline_cfg, params))
+    summary = summarize(results, suite, word)
     frames = [f for r in results.values() for f in r["frames"]]
     summary["reliability"] = reliability(frames)
     summary["context"] = context

@@ -44,9 +44,8 @@ class Comparison:
     over the bags both ran; missed: (category, reason) -> registrable frames not verified;
     context: what was run (CONTEXT_KEYS) where the two differ -> (before, after); within_reach:
     the registrable frames the link rules could reach with each run's estimates, over the bags
-    both ran (replay_suite.out_of_reach; None for a run that does not report it): a change that
-    moves it changed the estimates, one that does not only the rules; new_wrong: the bags that
-    published something wrong (BagOutcome.broke_rule) and did not before."""
+    both ran (replay_suite.out_of_reach; None for a run that does not report it); new_wrong: the
+    bags that published something wrong (BagOutcome.broke_rule) and did not before."""
 
     common: int
     changed: dict[str, tuple[BagOutcome, BagOutcome]]

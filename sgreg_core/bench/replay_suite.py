@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import typing
 from collections import Counter
 from dataclasses import asdict, dataclass
@@ -58,11 +57,10 @@ from pathlib import Path
 import numpy as np
 
 from ..config import as_hinted, check_types, from_dict, to_dict
-from ..metrics import SUCCESS_RRE_DEG, SUCCESS_RTE_M
-from ..rescan_gt import room_of
+from ..metrics import SUCCESS_RRE_DEG
+from ..rescan_gt import SCANNET_CAPTURE, room_of
 from ..simulation.synth import SynthConfig
 
-SCENE = re.compile(r"(scene\d{4})_\d{2}")
 
 
 class SuiteError(ValueError):
@@ -145,7 +143,7 @@ class ResultCache:
 
 
 def _short(scan: str) -> str:
-    m = SCENE.search(Path(scan).name)
+    m = SCANNET_CAPTURE.search(Path(scan).name)
     return m.group(0) if m else Path(scan).name
 
 
@@ -274,10 +272,11 @@ REQUEST_COUNTERS = {"sent": "requests", "retried": "request_retry", "gave_up": "
 
 
 # reasons of runtime/peers.py, not the verdict's, for not publishing an estimate as verified:
-# the link rules (time, the peer's word, the merged frame) and its own gates (too few node
-# matches to try; no points of the peer to verify on)
-RUNTIME_RULES = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles",
-                 "no_peer_cloud_to_verify", "too_few_matches")
+# the link rules (time, the peer's word, the merged frame), which hold estimates that passed the
+# verdict, and its own gates (too few node matches to try; no points of the peer to verify on)
+RUNTIME_HELD_AFTER_VERDICT = ("awaiting_confirmation", "contradicted", "disagrees_with_link",
+                              "disputed_by_cycles")
+RUNTIME_RULES = RUNTIME_HELD_AFTER_VERDICT + ("no_peer_cloud_to_verify", "too_few_matches")
 # what missed() calls each cause, in the suite's printout and its plot
 MISSED_LABELS = {"wrong_estimate": "wrong estimate", "right_refused": "right, refused by the verdict",
                  "right_held": "right, held by the runtime's rules"}
@@ -305,41 +304,40 @@ def missed(frames: list[dict]) -> dict:
 class PeersWord:
     """What the link rules let the peer's confirmed link do (PeersConfig fields of the same
     names): vouch for an estimate the verdict refused for its confidence alone, at no less than
-    vouched_min_confidence, when the two agree within agree_m / agree_deg."""
+    vouched_min_confidence, when the two agree (within agree_deg in rotation, among others)."""
     vouched_min_confidence: float
-    agree_m: float
     agree_deg: float
-
-
-# the runtime's reasons for holding an estimate that passed the verdict
-HELD_AFTER_VERDICT = ("awaiting_confirmation", "contradicted", "disagrees_with_link", "disputed_by_cycles")
 
 
 def out_of_reach(frames: list[dict], word: PeersWord) -> int:
     """The registrable frames that no link rule could have published right from this run's
-    estimates, as the verdict judged them. A link first rests on an estimate that passed the
-    verdict, and so does the peer's word, which may agree with a right estimate from up to
-    agree_m / agree_deg beyond the criterion; so in each pair of agents nothing is published
-    before the first estimate of either direction that passed the verdict that near the truth.
-    A direction then publishes right only from its own first right estimate that passed, or that
-    the verdict refused for its confidence alone at no less than vouched_min_confidence (what
-    the peer's word vouches for). Frames before that are out of reach. 1 - out_of_reach /
-    registrable bounds from above the success any link rules reach with these estimates, had
-    every reachable frame been published at once (rules that ask for points at other times make
-    other estimates, so it bounds this run, not every run): what lies below it is the rules'
-    cost, what lies above it takes estimates that are right sooner."""
+    estimates. A link first rests on an estimate that passed the verdict, and so does the peer's
+    word, which vouches only where it agrees with a right estimate, so within the criterion's
+    rotation plus agree_deg of the truth (rotation error, unlike translation error, is the same
+    both ways round); so in each pair of agents nothing is published before the first estimate
+    of either direction that passed the verdict that near the truth. A direction then publishes
+    right only from its own first right estimate that passed, or that the verdict refused for
+    its confidence alone at no less than vouched_min_confidence (what the peer's word vouches
+    for). Frames before that are out of reach; every later one counts as within reach, since a
+    link confirmed by then would have made it from its kept correspondences (a merged estimate)
+    instead of the estimate this run made without one. So 1 - out_of_reach / registrable bounds
+    from above what any link rules reach with this run's estimates (rules that ask for points
+    at other times make other estimates: it bounds this run, not every run); above the bound
+    lies what takes estimates that are right sooner. "Passed the verdict" is read from the
+    reasons the runtime gave (RUNTIME_HELD_AFTER_VERDICT), which only loosens the bound where a
+    withdrawal relabelled a refused estimate."""
     links: dict[tuple, list[dict]] = {}
     for f in frames:
         links.setdefault((f["agent"], f["peer"]), []).append(f)
 
     def passed(f):
-        return f["reason"] == "ok" or f["reason"] in HELD_AFTER_VERDICT
+        return f["reason"] == "ok" or f["reason"] in RUNTIME_HELD_AFTER_VERDICT
 
     def first(fs, take):
         return min((f["t"] for f in fs if take(f)), default=np.inf)
 
     def near(f):
-        return f["rte"] < SUCCESS_RTE_M + word.agree_m and f["rre"] < SUCCESS_RRE_DEG + word.agree_deg
+        return f["rre"] < SUCCESS_RRE_DEG + word.agree_deg
 
     def own(f):
         return f["correct"] and (passed(f) or (f["reason"] == "low_confidence"

@@ -97,6 +97,11 @@ class DataConfig:
         bad = {k: v for k, v in self.mix.items() if k not in MIX_SOURCES or not finite_number(v) or v < 0}
         if bad:
             raise ValueError(f"data.mix: {bad} are not weights >= 0 of the sources {', '.join(MIX_SOURCES)}")
+        # splits compare rooms (rescan_gt.room_of): a capture named here would match nothing
+        captures = [r for r in (*self.test_rooms, self.val_room) if r and room_of(r) != r]
+        if captures:
+            raise ValueError(f"data.test_rooms / val_room: {captures} name captures, not rooms "
+                             f"(e.g. {room_of(captures[0])!r})")
         if self.val_room and self.val_room in self.test_rooms:
             raise ValueError(f"data.val_room {self.val_room} is one of test_rooms: a room held out "
                              "for reporting must not select weights")

@@ -36,9 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import yaw_rotation
 from .estimator import (PoseConfig, PoseResult, best_refined_rival, cloud_verifier, far_apart,
                         refine_icp_coarse_to_fine, spread_of)
-from .solvers import apply_T, make_T, residuals, yaw_rotation
+from .solvers import apply_T, make_T, residuals
 from .verdict import REASONS, Evidence, VerdictConfig, finite_or_zero
 from .verify import ReferenceCloud, finite_voxel_downsample
 

@@ -10,7 +10,6 @@ Public API:
     make_pair(imap, cfg, rng) -> RegistrationPair
     node_iou(src_points, src_inst, ref_points, ref_inst, voxel) -> (pairs (m, 2), iou (m,))
         IoU of voxel occupancy of every overlapping (src instance, ref instance), common frame
-        (i, j): ref_points[j] is the nearest ref point to src_points[i] moved by T, within radius
     write_pair(pair, out_dir) / read_pair(dir)
         out_dir/src/, out_dir/ref/ (instance map directories) and out_dir/gt.json
 

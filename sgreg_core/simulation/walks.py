@@ -123,9 +123,7 @@ def level_transform(scene: InstanceMap, min_tilt_deg: float = 1.0) -> np.ndarray
     pts = scene.points[floor].astype(np.float64)
     n = np.linalg.svd(pts - pts.mean(0), full_matrices=False)[2][2]
     n = n if n[2] > 0 else -n
-    axis = np.cross(n, [0.0, 0.0, 1.0])
-    s, c = np.linalg.norm(axis), n[2]
-    if np.degrees(np.arctan2(s, c)) < min_tilt_deg:
+    if np.degrees(np.arccos(np.clip(n[2], -1.0, 1.0))) < min_tilt_deg:
         return T
     T[:3, :3] = rotation_between(n, np.array([0.0, 0.0, 1.0]))
     return T

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from sgreg_core.bench.baselines import BASELINES, BaselineConfig
-from sgreg_core.pose import apply_T, make_T, yaw_rotation
+from sgreg_core.pose import apply_T, make_T
+from sgreg_core.geometry import yaw_rotation
 
 
 def synthetic_room(rng):

@@ -11,6 +11,7 @@ from sgreg_core.maps.instance_map import write_instance_map
 from sgreg_core.net import load_model
 from sgreg_core.net import train as train_module
 from sgreg_core.config import apply_overrides, from_dict
+from sgreg_core.net.dataset import DataConfig
 from sgreg_core.net.dataset import PairSource, augment
 from sgreg_core.net.testing import hashed_text_encoder
 from sgreg_core.net.train import TrainConfig, train
@@ -196,3 +197,11 @@ def test_a_pair_without_node_matches_at_the_loss_iou_adds_nothing_instead_of_fai
                          torch.zeros((0, 2), dtype=torch.int64), cfg.loss)
     assert all(torch.isfinite(v.detach()) for v in losses.values()) and losses["total"].detach().item() == 0.0
     losses["total"].backward()
+
+
+def test_held_out_rooms_name_rooms_not_captures():
+    """Splits compare rooms: a capture named as held out would hold nothing out."""
+    with pytest.raises(ValueError, match="name captures, not rooms"):
+        DataConfig(test_rooms=("scene0005_00",))
+    with pytest.raises(ValueError, match="name captures"):
+        DataConfig(val_room="scene0002_01")

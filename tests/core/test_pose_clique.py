@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from sgreg_core.pose import clique_pyramid, compatibility, length_residuals, max_clique
-from sgreg_core.pose.solvers import apply_T, make_T, yaw_rotation
+from sgreg_core.pose.solvers import apply_T, make_T
+from sgreg_core.geometry import yaw_rotation
 
 
 def adjacency(n, edges):

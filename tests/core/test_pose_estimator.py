@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from sgreg_cli.main import main
+from sgreg_core.geometry import yaw_rotation
 from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, estimate_pose,
-                             make_T, yaw_rotation)
+                             make_T)
 from sgreg_core.pose.verdict import Evidence, VerdictConfig, judge, support
 
 ROOM = np.array([8.0, 6.0, 3.0])

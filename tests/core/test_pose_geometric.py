@@ -9,7 +9,8 @@ import pytest
 
 from sgreg_core.net.model import DenseMatches, NodeMatches, PointMatches
 from sgreg_core.pipeline import PipelineConfig, register_features
-from sgreg_core.pose import CloudVerifier, ReferenceCloud, apply_T, make_T, yaw_rotation
+from sgreg_core.pose import CloudVerifier, ReferenceCloud, apply_T, make_T
+from sgreg_core.geometry import yaw_rotation
 from sgreg_core.pose.geometric import (GeometricConfig, geometric_confidence, geometric_hypothesis,
                                        judge_geometric)
 from sgreg_core.pose.verdict import Evidence, VerdictConfig

@@ -8,8 +8,8 @@ import pytest
 
 from sgreg_core.net.model import DenseMatches, NodeFeatures, NodeMatches, PointMatches
 from sgreg_core.pipeline import PipelineConfig, register_features
-from sgreg_core.pose import (CloudVerifier, PoseConfig, ReferenceCloud, apply_T, make_T,
-                             yaw_rotation)
+from sgreg_core.geometry import yaw_rotation
+from sgreg_core.pose import CloudVerifier, PoseConfig, ReferenceCloud, apply_T, make_T
 from sgreg_core.pose.geometric import GeometricConfig
 from sgreg_core.pose.guided import GuidedConfig, center_poses, guided_matches
 

@@ -8,7 +8,8 @@ import pytest
 
 from sgreg_core.net.model import NodeMatches
 from sgreg_core.pipeline import COARSE_PAIRS_AFTER, PipelineConfig, register_features
-from sgreg_core.pose import PoseConfig, apply_T, estimate_pose, make_T, yaw_rotation
+from sgreg_core.pose import PoseConfig, apply_T, estimate_pose, make_T
+from sgreg_core.geometry import yaw_rotation
 from sgreg_core.pose.pairs import pair_poses, placement_support, yaw_hypotheses
 
 from test_pose_estimator import pose_error

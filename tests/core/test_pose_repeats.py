@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from sgreg_core.pipeline import PipelineConfig
-from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T, yaw_rotation
+from sgreg_core.pose import CloudVerifier, PoseConfig, apply_T, make_T
+from sgreg_core.geometry import yaw_rotation
 from sgreg_core.pose.repeats import RepeatConfig, placements, rival_fitness
 
 from test_pose_guided import room_objects

@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from sgreg_core.pose import (GncConfig, apply_T, fit_rigid, gnc_tls, make_T,
-                             nms_correspondences, yaw_rotation)
+                             nms_correspondences)
+from sgreg_core.geometry import yaw_rotation
 
 
 def random_rotation(rng):

@@ -40,7 +40,7 @@ def test_bags_that_moved_and_the_totals_over_the_bags_both_ran():
 
 
 def test_what_the_link_rules_could_reach_is_summed_over_the_bags_both_ran():
-    """It moves when the estimates change, not when only the rules do."""
+    """Only where both runs report it."""
     def reach(verified, registrable, out):
         return {**bag(verified, registrable), "out_of_reach": out}
     c = compare(run_of({"x": reach(8, 10, 1), "y": reach(3, 4, 0), "gone": reach(5, 5, 5)}),

@@ -322,7 +322,8 @@ def test_frames_out_of_reach_of_the_link_rules_come_before_an_estimate_a_rule_co
     """A pair's first link rests on an estimate that passed the verdict (near enough the truth to
     agree with a right one); a direction may then publish right from its own first right
     estimate that passed, or that the verdict refused for its confidence alone at no less than
-    the confidence the peer's word vouches for. Wrong or otherwise refused estimates open
+    the confidence the peer's word vouches for; every later frame is within reach (a link by
+    then would have made it from its kept pairs). Wrong or otherwise refused estimates open
     nothing; frames not registrable are not counted."""
     def f(agent, t, reason, confidence=0.95, off=(0.0, 0.0), registrable=True):
         rte, rre = off
@@ -337,13 +338,13 @@ def test_frames_out_of_reach_of_the_link_rules_come_before_an_estimate_a_rule_co
               f("b", 1.2, "low_confidence", 0.8),     # right, refused for its confidence, no link yet
               f("b", 1.5, "awaiting_confirmation"),   # passed the verdict: opens the pair
               f("b", 2.5, "low_confidence", 0.4)]
-    word = PeersWord(vouched_min_confidence=0.5, agree_m=0.3, agree_deg=3.0)
+    word = PeersWord(vouched_min_confidence=0.5, agree_deg=3.0)
     assert out_of_reach(frames, word) == 2          # a at 1.0, b at 1.2
     assert out_of_reach(frames, replace(word, vouched_min_confidence=0.7)) == 3    # a waits for 3.0
     assert out_of_reach([fr for fr in frames if fr["agent"] == "a"], word) == 2    # a alone: its 3.0
     # the peer's word may be off by up to the agreement beyond the criterion, no further
-    near = [*frames[1:5], f("b", 1.5, "ok", off=(0.7, 1.0))]
-    assert out_of_reach(near, word) == 2 and out_of_reach(near, replace(word, agree_m=0.1)) == 4
+    near = [*frames[1:5], f("b", 1.5, "ok", off=(0.3, 6.0))]
+    assert out_of_reach(near, word) == 2 and out_of_reach(near, replace(word, agree_deg=0.5)) == 4
     suite = Suite("t", Path("t.yaml"), [BagJob("b", Path("b"))])
     summary = summarize({"b": report(frames, 0, {})}, suite, word)
     assert summary["rows"]["all"]["out_of_reach"] == 2 and summary["bags"]["b"]["out_of_reach"] == 2

@@ -54,7 +54,7 @@ def test_suite_runner_makes_replays_summarises_and_caches(tmp_path):
     assert "success (registrable)" in stdout and "suite tiny" in stdout
     assert row["dense_requests"]["sent"] > 0 and "dense requests:" in stdout
     # the bound any link rule meets on these estimates, with the peer's word the nodes read
-    assert summary["peers_word"] == {"vouched_min_confidence": 0.5, "agree_m": 0.3, "agree_deg": 3.0}
+    assert summary["peers_word"] == {"vouched_min_confidence": 0.5, "agree_deg": 3.0}
     assert 0 <= row["out_of_reach"] <= row["registrable_frames"] and "within reach of the link rules" in stdout
 
     again = bench(suite, out)                     # nothing changed: every result is cached
@@ -176,6 +176,8 @@ def test_bad_suite_values_and_run_inputs_are_refused_in_one_line(tmp_path):
     shutil.copytree(BAGS / "apartment_opposite", bad_gt)
     (bad_gt / "ground_truth.json").write_text("[]")
     shipped = f"bags: [{BAGS / 'apartment_opposite'}]\n"
+    bad_params = tmp_path / "bad.yaml"      # a value the nodes refuse: refused before any replay
+    bad_params.write_text("/**:\n  ros__parameters:\n    vouched_min_confidence: 2.0\n")
     for text, extra, words in [
         ("defaults: {speed: fast}\nscans: [{synth: {}}]\n", [], "defaults: speed must be a finite number"),
         ("scans: [{synth: {roomz: 2}}]\n", [], "synth: unknown keys ['roomz']"),
@@ -183,6 +185,7 @@ def test_bad_suite_values_and_run_inputs_are_refused_in_one_line(tmp_path):
         (shipped, ["--params-file", str(tmp_path / "none.yaml")], "cannot read --params-file"),
         (shipped, ["--backend", "offline", "--params-file", "config/profiles/distinct_rooms.yaml"],
          "--params-file needs --backend ros"),
+        (shipped, ["--params-file", str(bad_params)], "vouched_min_confidence"),
         (shipped, ["--weights", str(tmp_path / "none.safetensors")], "cannot load weights"),
         (shipped, ["--out", str(tmp_path / "a_file" / "out")], "--out: cannot create folder"),
     ]:
