@@ -1,6 +1,7 @@
 """`sgreg bench-replay SUITE.yaml [--out DIR] [--backend ros|offline]`: make every bag of a suite
 (once; cached in the suite's bag_dir), replay each one after the other and score it, then write
-DIR/results.json (summary rows, per-bag rows, reliability of the stated confidence),
+DIR/results.json (summary rows, per-bag rows, reliability of the stated confidence, and how
+many registrable frames the link rules could reach with the run's estimates),
 DIR/config.json, one DIR/bags/<bag>.json per bag, DIR/summary.png, and print the tables.
 
 Per-bag results are cached: a bag whose result was made with the same bag spec, backend,
