@@ -62,7 +62,6 @@ from ..rescan_gt import SCANNET_CAPTURE, room_of
 from ..simulation.synth import SynthConfig
 
 
-
 class SuiteError(ValueError):
     """A suite file that cannot be used; the message says why in one line."""
 
