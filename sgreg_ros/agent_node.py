@@ -16,7 +16,7 @@ from sgreg_core.maps.scene_graph import GraphConfig
 from sgreg_core.runtime.agent import AgentConfig, AgentCore
 from sgreg_core.runtime.auth import AuthConfig
 from sgreg_core.runtime.health import HealthConfig
-from sgreg_core.runtime.wire import ENCODINGS
+from sgreg_core.runtime.wire import DEFAULT_ENCODING, ENCODINGS
 
 from . import convert, qos
 from .node_base import SgregNode
@@ -30,7 +30,7 @@ class AgentNodeConfig:
     agent_name: str = param("", "agent id and topic prefix (/<id>/sgreg/...); empty: the node's namespace")
     weights_path: str = param("", "model weights (.safetensors with its .json); empty: the shipped model")
     coarse_rate_hz: float = param(1.0, "coarse graph rate while the graph changes", 0.05, 20.0, live=True)
-    feature_encoding: str = param("float16", "node descriptors on the wire", choices=tuple(ENCODINGS),
+    feature_encoding: str = param(DEFAULT_ENCODING, "node descriptors on the wire", choices=tuple(ENCODINGS),
                                   live=True)
 
 

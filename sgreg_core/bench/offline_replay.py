@@ -33,7 +33,7 @@ from ..runtime.clock import seconds_to_ns
 from ..runtime.messages import GraphMessage
 from ..runtime.merge import MergeConfig, Merger
 from ..runtime.peers import Peers, PeersConfig, check_request_size
-from ..runtime.wire import ENCODINGS, pack_features, unpack_features
+from ..runtime.wire import DEFAULT_ENCODING, ENCODINGS, pack_features, unpack_features
 from ..types import InstanceMap
 from .replay_score import ResultRecord
 
@@ -48,7 +48,7 @@ class OfflineReplayConfig:
 
     coarse_period_s: float = 1.0
     tail_s: float = 6.0
-    feature_encoding: str = "float16"
+    feature_encoding: str = DEFAULT_ENCODING
     agent: AgentConfig = field(default_factory=AgentConfig)
     peers: PeersConfig = field(default_factory=PeersConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)

@@ -37,7 +37,7 @@ from ..net.model import SGRegModel
 from ..pipeline import PipelineConfig, build_graphs, node_cloud, reference_cloud, register_features, to_map_frames
 from ..pose import ReferenceCloud
 from ..runtime.peers import PeersConfig
-from ..runtime.wire import ENCODINGS, pack_features
+from ..runtime.wire import DEFAULT_ENCODING, ENCODINGS, pack_features
 from ..simulation.synth import SynthConfig, generate_scene
 from ..types import InstanceMap
 
@@ -52,7 +52,7 @@ class ScaleConfig:
     repeats: int = 3
     seed: int = 0
     rooms_per_node: float = 1 / 14
-    feature_encoding: str = "float16"
+    feature_encoding: str = DEFAULT_ENCODING
 
 
 def _instances_along(imap: InstanceMap) -> tuple[np.ndarray, np.ndarray]:

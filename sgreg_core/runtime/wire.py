@@ -10,6 +10,9 @@ import numpy as np
 
 FLOAT32, FLOAT16, INT8 = 0, 1, 2  # the FEATURE_* constants of sgreg_msgs/CoarseGraph
 ENCODINGS = {"float32": FLOAT32, "float16": FLOAT16, "int8": INT8}
+# what agents send unless told otherwise (the node's feature_encoding), and so what offline
+# replays and the scaling bench assume: half float32's bytes, matching unchanged
+DEFAULT_ENCODING = "float16"
 
 
 class WireError(ValueError):
