@@ -186,10 +186,11 @@ def _other_rooms_of(cfg: CaseConfig, a: str, scans: list[str]) -> list[str]:
     """Scans of rooms other than a's for a different-room pair: other_rooms when given, else
     any, but a held-out room only beside another held-out room (the different-room poses of
     training rooms feed threshold fits, which the held-out room must never enter)."""
-    held = set(cfg.held_out_rooms)
-    return [s for s in scans if room_of(s) != room_of(a)
-            and (room_of(s) in cfg.other_rooms if cfg.other_rooms
-                 else room_of(s) not in held or room_of(a) in held)]
+    held, room = set(cfg.held_out_rooms), room_of(a)
+    rooms = {s: room_of(s) for s in scans}
+    return [s for s in scans if rooms[s] != room
+            and (rooms[s] in cfg.other_rooms if cfg.other_rooms
+                 else rooms[s] not in held or room in held)]
 
 
 def _different_room_cases(cfg: CaseConfig, tested: list[str], scans: list[str]) -> list[Case]:

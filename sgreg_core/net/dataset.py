@@ -199,9 +199,10 @@ class PairSource:
                        if p.is_dir())
 
         def split_of(name: str) -> str:
-            if room_of(name) in cfg.test_rooms:
+            room = room_of(name)
+            if room in cfg.test_rooms:
                 return "test"
-            return "val" if cfg.val_room and room_of(name) == cfg.val_room else "train"
+            return "val" if cfg.val_room and room == cfg.val_room else "train"
         self.scans = [s for s in scans if split_of(s) == split]
         self.rescans = self._rescan_list(set(self.scans))
         sources = {"scan": bool(self.scans), "rescan": bool(self.rescans),
